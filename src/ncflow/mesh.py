@@ -157,7 +157,9 @@ def load_mesh(path: str | os.PathLike, *, weld: bool | None = None, validate: bo
     try:
         loaded = trimesh.load(str(path), process=False, maintain_order=True, force="mesh")
     except IndexError:
-        raise InputError("face index out of range", path) from None
+        if suffix == ".obj":  # trimesh's OBJ reader indexes the vertex list with the face indices
+            raise InputError("face index out of range", path) from None
+        raise InputError("cannot read mesh (corrupt or truncated file)", path) from None
     except Exception as exc:  # trimesh raises many kinds of errors for broken files
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         if "outside the range" in msg or "out of bounds" in msg:

@@ -4,7 +4,7 @@ A measure μ = Σ_j k(·, z_j) w_j (varifold or Normal Cycle, in the scaled feat
 is exp(−‖z − z'‖²)) is replaced by μ_c = Σ_{c ∈ C} k(·, z_c) β_c on m representatives C ⊂ {z_j}:
 
 1. ridge leverage scores ℓ_i = [K_B (K_B + λI)⁻¹]_ii of the kernel, computed inside random
-   blocks B of ``block_size`` points (the paper's blocked approximation);
+   blocks B of ``block_size`` points (default ⌊√N⌋, the paper's blocked approximation);
 2. m representatives drawn without replacement with probability ∝ ℓ (NumPy generator seeded
    by ``seed``: the same seed gives the same representatives);
 3. β = (K_CC + αI)⁻¹ K_CN W, the regularised projection of μ onto span{k(·, z_c)} (float64
@@ -55,18 +55,28 @@ class CompressionReport:
 
 
 def _gram(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    d2 = (a * a).sum(1)[:, None] + (b * b).sum(1)[None, :] - 2.0 * a @ b.T
-    return np.exp(-np.maximum(d2, 0.0))
+    k = a @ b.T
+    k *= 2.0
+    k -= (a * a).sum(1)[:, None]
+    k -= (b * b).sum(1)[None, :]
+    np.minimum(k, 0.0, out=k)
+    return np.exp(k, out=k)
 
 
 def leverage_scores(
-    z: Float[np.ndarray, "N D"], ridge: float = 0.1, block_size: int = 1000, seed: int = 0
+    z: Float[np.ndarray, "N D"], ridge: float = 0.1, block_size: int | None = None, seed: int = 0
 ) -> Float[np.ndarray, " N"]:
-    """Blocked ridge leverage scores ℓ_i = [K_B (K_B + λI)⁻¹]_ii of exp(−‖z − z'‖²), blocks drawn at random."""
+    """Blocked ridge leverage scores ℓ_i = [K_B (K_B + λI)⁻¹]_ii of exp(−‖z − z'‖²).
+
+    Blocks are consecutive runs of a seeded random permutation, of ``block_size`` points
+    (default ⌊√N⌋ as in Algorithm 2).
+    """
     z = np.asarray(z, dtype=np.float64)
     n = z.shape[0]
     rng = np.random.default_rng(seed)
     perm = rng.permutation(n)
+    if block_size is None:
+        block_size = int(np.sqrt(n))
     block_size = max(1, min(block_size, n))
     scores = np.empty(n)
     for start in range(0, n, block_size):
@@ -78,7 +88,7 @@ def leverage_scores(
 
 
 def _nystrom(
-    z: Array, w: Array, m: int, seed: int, ridge: float, jitter: float, block_size: int, report_error: bool
+    z: Array, w: Array, m: int, seed: int, ridge: float, jitter: float, block_size: int | None, report_error: bool
 ) -> tuple[np.ndarray, np.ndarray, float, float]:
     t0 = time.perf_counter()
     z_np = np.asarray(z, dtype=np.float64)
@@ -116,7 +126,7 @@ def compress_varifold(
     seed: int = 0,
     ridge: float = 0.1,
     jitter: float = 1e-6,
-    block_size: int = 1000,
+    block_size: int | None = None,
     report_error: bool = True,
 ) -> tuple[Varifold, CompressionReport]:
     """Compress a varifold to m representative faces for kernel widths (σ, σ_n) (Algorithm 2).
@@ -150,7 +160,7 @@ def compress_normal_cycle(
     seed: int = 0,
     ridge: float = 0.1,
     jitter: float = 1e-6,
-    block_size: int = 1000,
+    block_size: int | None = None,
     report_error: bool = True,
 ) -> tuple[NormalCycle, CompressionReport]:
     """Compress a Normal Cycle to m representative points for kernel width σ (Algorithm 2).

@@ -1,0 +1,8 @@
+"""Test-wide settings: float64 JAX so that references agree to 1e-6 and better.
+
+Library code follows the dtype of its inputs; tests of float32 behaviour pass float32 arrays.
+"""
+
+import jax
+
+jax.config.update("jax_enable_x64", True)

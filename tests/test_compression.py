@@ -1,0 +1,94 @@
+"""Nyström compression (Algorithm 2): accuracy on a large mesh, monotone in m, reproducible."""
+
+import numpy as np
+import pytest
+
+from ncflow.errors import InputError
+from ncflow.measures import (
+    compress_normal_cycle,
+    compress_varifold,
+    leverage_scores,
+    normal_cycle,
+    normal_cycle_distance,
+    normal_cycle_inner,
+    varifold,
+    varifold_distance,
+    varifold_inner,
+)
+from ncflow.mesh import mesh_topology
+from ncflow.shapes import sphere
+
+
+@pytest.fixture(scope="module")
+def big_sphere():
+    v, f = sphere(5)  # 20480 faces, 30720 edges
+    return v, f, mesh_topology(f)
+
+
+@pytest.mark.parametrize("metric", ["normal_cycles", "varifold"])
+def test_compression_error_at_n_over_5_and_monotone_in_m(big_sphere, metric):
+    v, f, topo = big_sphere
+    if metric == "normal_cycles":
+        y = normal_cycle(v, topo)
+        compress = lambda m: compress_normal_cycle(y, m, sigma=0.1, seed=0)  # noqa: E731
+    else:
+        y = varifold(v, f)
+        compress = lambda m: compress_varifold(y, m, sigma=0.1, seed=0)  # noqa: E731
+    n = y.size
+    errors = []
+    for m in (n // 40, n // 20, n // 5):
+        yc, rep = compress(m)
+        assert rep.m == m == yc.size and rep.n == n
+        errors.append(rep.relative_error)
+    assert errors[2] <= 1e-2  # measured: ~1e-6 for both metrics
+    assert errors[0] > errors[1] > errors[2]
+
+
+@pytest.mark.parametrize("metric", ["normal_cycles", "varifold"])
+def test_reported_error_is_the_metric_and_compressed_metric_is_close(metric):
+    v, f = sphere(3)
+    if metric == "normal_cycles":
+        topo = mesh_topology(f)
+        y, x = normal_cycle(v, topo), normal_cycle(v * 1.1 + 0.05, topo)
+        yc, rep = compress_normal_cycle(y, y.size // 2, sigma=0.15, seed=2)
+        dist = lambda a, b: float(normal_cycle_distance(a, b, 0.15))  # noqa: E731
+        norm2 = float(normal_cycle_inner(y, y, 0.15))
+    else:
+        y, x = varifold(v, f), varifold(v * 1.1 + 0.05, f)
+        yc, rep = compress_varifold(y, y.size // 2, sigma=0.15, seed=2)
+        dist = lambda a, b: float(varifold_distance(a, b, 0.15, 0.5))  # noqa: E731
+        norm2 = float(varifold_inner(y, y, 0.15, 0.5))
+    # the reported error is d(Y, Y_c) / <Y, Y>
+    assert rep.relative_error == pytest.approx(dist(y, yc) / norm2, rel=1e-6, abs=1e-12)
+    assert 0 < rep.relative_error < 1e-2
+    # and the compressed target gives nearly the same metric against another shape
+    assert dist(x, yc) == pytest.approx(dist(x, y), rel=1e-2)
+
+
+def test_compression_reproducible_and_seeded():
+    v, f = sphere(3)
+    y = normal_cycle(v, mesh_topology(f))
+    a, ra = compress_normal_cycle(y, 300, sigma=0.2, seed=5, report_error=False)
+    b, rb = compress_normal_cycle(y, 300, sigma=0.2, seed=5, report_error=False)
+    c, rc = compress_normal_cycle(y, 300, sigma=0.2, seed=6, report_error=False)
+    np.testing.assert_array_equal(ra.indices, rb.indices)
+    np.testing.assert_array_equal(np.asarray(a.weights), np.asarray(b.weights))
+    assert not np.array_equal(ra.indices, rc.indices)
+    assert np.isnan(ra.relative_error)
+
+
+def test_m_at_least_n_returns_the_measure_and_bad_m_raises():
+    v, f = sphere(1)
+    y = varifold(v, f)
+    same, rep = compress_varifold(y, 10_000, sigma=0.3)
+    assert same is y and rep.relative_error == 0.0
+    with pytest.raises(InputError):
+        compress_varifold(y, 0, sigma=0.3)
+
+
+def test_leverage_scores_against_dense_formula():
+    rng = np.random.default_rng(0)
+    z = rng.normal(size=(40, 3))
+    scores = leverage_scores(z, ridge=0.3, block_size=40, seed=0)  # one block: exact RLS
+    k = np.exp(-((z[:, None] - z[None]) ** 2).sum(-1))
+    np.testing.assert_allclose(scores, np.diag(k @ np.linalg.inv(k + 0.3 * np.eye(40))), rtol=1e-8)

@@ -1,0 +1,150 @@
+"""Mesh reading, validation errors, topology tables, welding and normalisation."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from ncflow.errors import InputError
+from ncflow.mesh import (
+    close_boundary,
+    enclosed_volume,
+    fit_normalization,
+    load_mesh,
+    mesh_topology,
+    save_mesh,
+    validate_mesh,
+    weld_vertices,
+)
+from ncflow.shapes import capsule, sphere, tube
+
+TRI = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n"
+
+
+def write(tmp_path, name, text):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+@pytest.mark.parametrize(
+    "name, text, message",
+    [
+        ("empty.obj", "v 0 0 0\nv 1 0 0\n", "no faces"),
+        ("quad.obj", "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n", "non-triangular"),
+        ("quad.off", "OFF\n4 1 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3\n", "non-triangular"),
+        (
+            "quad.ply",
+            "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
+            "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3\n",
+            "non-triangular",
+        ),
+        ("nan.obj", "v 0 0 nan\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "NaN or infinite"),
+        ("inf.off", "OFF\n3 1 0\n0 0 inf\n1 0 0\n0 1 0\n3 0 1 2\n", "NaN or infinite"),
+        ("range.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n", "out of range"),
+        ("range.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 5\n", "out of range"),
+        ("degenerate.obj", TRI + "f 1 2 3\nf 1 1 2\nf 2 2 3\nf 1 2 4\n", "zero area"),
+        (
+            "fin.obj",
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 -1 0\nv 0 0 1\nv 0 0 -1\nv 0.5 0.5 0.5\n"
+            "f 1 2 3\nf 2 1 4\nf 1 2 5\nf 2 1 6\nf 1 2 7\n",
+            "shared by 5 faces",
+        ),
+        ("garbage.ply", "this is not a ply file at all\n", "cannot read mesh"),
+        ("mesh.xyz", "0 0 0\n", "unsupported mesh format"),
+    ],
+)
+def test_bad_files_raise_one_line_errors_naming_the_file(tmp_path, name, text, message):
+    path = write(tmp_path, name, text)
+    with pytest.raises(InputError) as err:
+        load_mesh(path)
+    msg = str(err.value)
+    assert message in msg
+    assert str(path) in msg
+    assert "\n" not in msg
+
+
+def test_missing_file_and_directory(tmp_path):
+    with pytest.raises(InputError, match="no such file"):
+        load_mesh(tmp_path / "nope.obj")
+    with pytest.raises(InputError, match="is a directory"):
+        load_mesh(tmp_path)
+
+
+def test_validate_arrays_directly():
+    v, f = sphere(1)
+    validate_mesh(v, f)
+    with pytest.raises(InputError, match="out of range"):
+        validate_mesh(v, f - 1)
+    with pytest.raises(InputError, match="all vertices coincide"):
+        validate_mesh(np.zeros_like(v), f)
+
+
+def test_roundtrip_keeps_vertex_order(tmp_path):
+    v, f = capsule(n_around=10, n_along=6)
+    perm = np.random.default_rng(0).permutation(len(v))
+    v2, f2 = v[perm], np.argsort(perm)[f]
+    for suffix in [".obj", ".ply", ".off"]:
+        path = tmp_path / f"m{suffix}"
+        save_mesh(path, v2, f2)
+        m = load_mesh(path)
+        np.testing.assert_allclose(m.vertices, v2, atol=1e-6)
+        np.testing.assert_array_equal(m.faces, f2)
+
+
+def test_stl_is_welded_into_one_surface(tmp_path):
+    v, f = sphere(1)
+    path = tmp_path / "s.stl"
+    save_mesh(path, v, f)
+    m = load_mesh(path)  # an STL stores 3 vertices per face; welding restores the 42 vertices
+    assert m.n_vertices == len(v) and m.n_faces == len(f)
+    assert not mesh_topology(m.faces).has_boundary
+    np.testing.assert_allclose(m.vertices[m.faces], v[f], atol=1e-6)
+
+
+def test_weld_vertices_keeps_first_occurrence_order():
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 0, 0], [0, 1, 0], [1, 0, 0]], float)
+    f = np.array([[0, 1, 3], [2, 4, 3]])
+    w, wf, first = weld_vertices(v, f)
+    np.testing.assert_array_equal(first, [0, 1, 3])
+    np.testing.assert_array_equal(wf, [[0, 1, 2], [0, 1, 2]])
+    np.testing.assert_array_equal(w, v[[0, 1, 3]])
+
+
+def test_topology_closed_open_counts():
+    v, f = sphere(2)
+    t = mesh_topology(f)
+    assert t.n_edges == 3 * len(f) // 2 and not t.has_boundary
+    assert np.all(t.edges[:, 0] < t.edges[:, 1])
+    assert np.all(np.sort(t.edges.view("i8,i8"), axis=0) == t.edges.view("i8,i8"))
+    # every interior edge of a consistently wound closed surface is run once each way
+    assert np.all(t.edge_signs[:, :2].sum(1) == 0) and np.all(t.edge_faces[:, 2:] == -1)
+    v, f = tube(n_around=10, n_along=4)
+    t = mesh_topology(f)
+    assert t.boundary_edges.sum() == 20 and t.boundary_vertices.size == 20
+    assert t.boundary_neighbors.shape == (20, 2) and np.all(t.boundary_neighbors >= 0)
+    # edge-face incidence agrees with a brute-force scan
+    for e, (a, b) in enumerate(t.edges[:15]):
+        faces = [i for i, tri in enumerate(f) if a in tri and b in tri]
+        assert list(t.edge_faces[e][t.edge_faces[e] >= 0]) == faces
+
+
+def test_enclosed_volume_closed_and_open():
+    v, f = sphere(4)
+    assert enclosed_volume(v, f) == pytest.approx(trimesh.Trimesh(v, f).volume, rel=1e-12)
+    # an open tube is closed by fans to its loop centroids: the volume of the prism over the polygon
+    v, f = tube(radius=0.5, length=2.0, n_around=16, n_along=5)
+    polygon_area = 0.5 * 16 * 0.25 * np.sin(2 * np.pi / 16)
+    assert enclosed_volume(v, f) == pytest.approx(polygon_area * 2.0, rel=1e-12)
+    cv, cf = close_boundary(v, f)
+    assert not mesh_topology(cf).has_boundary and trimesh.Trimesh(cv, cf, process=False).is_winding_consistent
+
+
+def test_normalization_is_reversible_and_hits_unit_ball_volume():
+    v, f = capsule()
+    v = v * 3.7 + np.array([1.0, -2.0, 5.0])
+    norm = fit_normalization(v, f)
+    vn = norm.apply(v)
+    assert enclosed_volume(vn, f) == pytest.approx(4 * np.pi / 3, rel=1e-10)
+    areas = np.linalg.norm(np.cross(vn[f][:, 1] - vn[f][:, 0], vn[f][:, 2] - vn[f][:, 0]), axis=1)
+    np.testing.assert_allclose((vn[f].mean(1) * areas[:, None]).sum(0), 0.0, atol=1e-10)
+    np.testing.assert_allclose(norm.invert(vn), v, atol=1e-12)
