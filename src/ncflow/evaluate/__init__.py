@@ -1,0 +1,63 @@
+"""Evaluation: correspondence, Chamfer and distortion metrics, ground-truth readers (docs/evaluation.md)."""
+
+from .geodesics import (
+    GeodesicInfo,
+    insert_surface_points,
+    pair_geodesic_distances,
+    surface_points,
+    vertex_surface_points,
+)
+from .ground_truth import (
+    GT_FORMATS,
+    GroundTruth,
+    ground_truth_from_vertex_map,
+    load_ground_truth,
+    read_index_file,
+    save_ground_truth,
+)
+from .metrics import (
+    TAU_MAX,
+    auc,
+    bone_violation,
+    chamfer_distances,
+    closest_points_on_surface,
+    conformal_distortion,
+    error_summary,
+    evaluate_correspondence,
+    geodesic_errors,
+    inverted_triangles,
+    pck_curve,
+    point_triangle_closest,
+    triangle_singular_values,
+    unit_cube_scale,
+    volume_change,
+)
+
+__all__ = [
+    "GT_FORMATS",
+    "TAU_MAX",
+    "GeodesicInfo",
+    "GroundTruth",
+    "auc",
+    "bone_violation",
+    "chamfer_distances",
+    "closest_points_on_surface",
+    "conformal_distortion",
+    "error_summary",
+    "evaluate_correspondence",
+    "geodesic_errors",
+    "ground_truth_from_vertex_map",
+    "insert_surface_points",
+    "inverted_triangles",
+    "load_ground_truth",
+    "pair_geodesic_distances",
+    "pck_curve",
+    "point_triangle_closest",
+    "read_index_file",
+    "save_ground_truth",
+    "surface_points",
+    "triangle_singular_values",
+    "unit_cube_scale",
+    "vertex_surface_points",
+    "volume_change",
+]
