@@ -100,10 +100,12 @@ def _nystrom(
     rhs = np.asarray(kernel_matvec(zc, z, w), dtype=np.float64)  # K_CN W, (m, K)
     kcc = _gram(z_np[idx], z_np[idx])
     kcc[np.diag_indices_from(kcc)] += jitter
-    beta = scipy.linalg.cho_solve(scipy.linalg.cho_factor(kcc, overwrite_a=True), rhs)
+    factor = scipy.linalg.cho_factor(kcc.T, overwrite_a=True, check_finite=False)  # F-ordered view: no copy
+    beta = scipy.linalg.cho_solve(factor, rhs, check_finite=False)
+    del factor
     rel = float("nan")
     if report_error:
-        kcc[np.diag_indices_from(kcc)] -= jitter
+        kcc = _gram(z_np[idx], z_np[idx])
         yy = float(kernel_self_sum(z, w))
         cross = float(np.sum(beta * rhs))
         cc = float(np.sum(beta * (kcc @ beta)))
