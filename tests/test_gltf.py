@@ -27,6 +27,8 @@ from __future__ import annotations
 import math
 import struct
 
+import json
+
 import numpy as np
 import pygltflib
 import pytest
@@ -461,9 +463,7 @@ def test_cli_list(arm_glb, capsys):
 
 
 def test_cli_skeleton_out(arm_glb, tmp_path):
-    skeleton = pytest.importorskip("ncflow.skeleton")
-    if not hasattr(skeleton, "save_skeleton"):
-        pytest.skip("ncflow.skeleton.save_skeleton not available yet")
+    from ncflow import skeleton
     mesh_out, skel_out = tmp_path / "m.ply", tmp_path / "s.json"
     assert main(["pose", str(arm_glb), "--time", "1", "--out", str(mesh_out), "--skeleton-out", str(skel_out)]) == 0
     assert mesh_out.exists() and skel_out.exists()
@@ -475,6 +475,22 @@ def test_cli_skeleton_out(arm_glb, tmp_path):
         np.testing.assert_allclose(skel.positions[j], expected[name], atol=1e-6)
     parent_name = {n: (skel.names[p] if p >= 0 else None) for n, p in zip(skel.names, skel.parents)}
     assert parent_name == {"shoulder": None, "elbow": "shoulder", "wrist": "elbow"}
+
+
+def test_load_skeleton_and_convert_from_glb(arm_glb, tmp_path):
+    from ncflow.skeleton import load_skeleton
+
+    pos, parents, names = gltf_skeleton(arm_glb, time=1.0, animation="bend")
+    skel = load_skeleton(arm_glb, time=1.0, animation="bend")
+    by_name = {n: p for n, p in zip(names, pos)}
+    assert set(skel.names) == set(names) and skel.parents[0] == -1
+    np.testing.assert_allclose(skel.positions, [by_name[n] for n in skel.names], atol=1e-12)
+    for j in range(1, skel.n_joints):  # same tree, by name
+        assert names[parents[names.index(skel.names[j])]] == skel.names[skel.parents[j]]
+    out = tmp_path / "arm.json"
+    assert main(["skeleton", "convert", str(arm_glb), str(out), "--time", "1", "--animation", "bend"]) == 0
+    data = json.loads(out.read_text())
+    np.testing.assert_allclose(data["positions"], skel.positions, atol=1e-9)
 
 
 def test_merge_zero_length_bones():

@@ -1,0 +1,122 @@
+"""``ncflow skeleton``: inspect and convert skeleton files (TGF, JSON, glTF/GLB)."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def _animation(value: str) -> str | int:
+    return int(value) if value.lstrip("-").isdigit() else value
+
+
+def _add_gltf_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--time", type=float, metavar="T", help="glTF/GLB: pose at animation time T (seconds); default rest pose"
+    )
+    p.add_argument("--animation", type=_animation, metavar="A", help="glTF/GLB: animation name or index")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "skeleton",
+        help="inspect or convert a skeleton file",
+        description="Inspect or convert skeletons (TGF, JSON, glTF/GLB input; TGF or JSON output).",
+    )
+    ssub = p.add_subparsers(dest="skeleton_command", metavar="ACTION", required=True)
+
+    info = ssub.add_parser(
+        "info",
+        help="joints, bones, lengths and placement checks",
+        description="Print the joints and bones of a skeleton, their lengths and the root; with "
+        "--mesh, also warn about joints outside (closed mesh) or far from (open mesh) the surface.",
+    )
+    info.add_argument("skeleton", help="skeleton file (.tgf, .json, .glb, .gltf)")
+    info.add_argument("--mesh", help="mesh the skeleton belongs to (OBJ/PLY/OFF/STL/GLB)")
+    _add_gltf_options(info)
+    info.add_argument("--json", action="store_true", help="print one JSON object")
+    info.set_defaults(func=run_info)
+
+    conv = ssub.add_parser(
+        "convert",
+        help="convert between skeleton formats",
+        description="Read a skeleton (TGF/JSON/glTF/GLB) and write it as TGF (1-based) or JSON, "
+        "joints in topological order (parents first).",
+    )
+    conv.add_argument("input", help="skeleton file (.tgf, .json, .glb, .gltf)")
+    conv.add_argument("output", help="output file (.tgf or .json)")
+    _add_gltf_options(conv)
+    conv.set_defaults(func=run_convert)
+
+
+def _load(args: argparse.Namespace, path: str):
+    from ..skeleton.skeleton import load_skeleton
+
+    return load_skeleton(path, time=args.time, animation=args.animation)
+
+
+def run_info(args: argparse.Namespace) -> int:
+    import json
+
+    import numpy as np
+
+    skel = _load(args, args.skeleton)
+    warnings: list[str] = []
+    if args.mesh:
+        from ..mesh import load_mesh
+        from ..skeleton.skeleton import check_inside
+
+        mesh = load_mesh(args.mesh)
+        warnings = check_inside(skel, mesh.vertices, mesh.faces)
+    lengths = skel.bone_lengths
+    bones = [
+        {"parent": skel.label(int(a)), "child": skel.label(int(c)), "length": float(lengths[b])}
+        for b, (a, c) in enumerate(skel.bones)
+    ]
+    lo, hi = skel.positions.min(0), skel.positions.max(0)
+    if args.json:
+        out = {
+            "file": args.skeleton,
+            "n_joints": skel.n_joints,
+            "n_bones": skel.n_bones,
+            "root": skel.label(0),
+            "depth": int(skel.depth.max()),
+            "total_length": float(lengths.sum()),
+            "bbox_min": lo.tolist(),
+            "bbox_max": hi.tolist(),
+            "bones": bones,
+            "warnings": warnings,
+        }
+        print(json.dumps(out))
+        return 0
+    print(f"skeleton: {args.skeleton}")
+    print(f"  joints: {skel.n_joints}   bones: {skel.n_bones}   root: {skel.label(0)}   depth: {int(skel.depth.max())}")
+    print(
+        f"  bone length: total {lengths.sum():.6g}, min {lengths.min():.6g}, "
+        f"median {np.median(lengths):.6g}, max {lengths.max():.6g}"
+    )
+    print(f"  bounding box: [{', '.join(f'{x:.4g}' for x in lo)}] to [{', '.join(f'{x:.4g}' for x in hi)}]")
+    print("  bones (parent -> child: length):")
+    for b in bones:
+        print(f"    {b['parent']} -> {b['child']}: {b['length']:.6g}")
+    if args.mesh:
+        if warnings:
+            print(f"  {len(warnings)} warning(s) against {args.mesh}:")
+            for w in warnings:
+                print(f"    warning: {w}")
+        else:
+            print(f"  all joints inside / near {args.mesh}")
+    return 0
+
+
+def run_convert(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from ..errors import InputError
+    from ..skeleton.skeleton import save_skeleton
+
+    if Path(args.output).suffix.lower() not in (".tgf", ".json"):
+        raise InputError("can only write skeletons as .tgf or .json", args.output)
+    skel = _load(args, args.input)
+    save_skeleton(args.output, skel)
+    print(f"wrote {args.output}: {skel.n_joints} joints, {skel.n_bones} bones")
+    return 0
