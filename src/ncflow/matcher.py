@@ -1,0 +1,612 @@
+"""The matcher: correspondence-free matching and interpolation of two poses (paper §4, Eq. 22–27).
+
+Pipeline (DESIGN.md "Pipeline"): validate inputs → one similarity normalises source, target and
+skeleton → topology and target measures (Varifold / Normal Cycles, compressed per length scale
+when larger than ``config.compress``) → soft-tissue samples (fTetWild once, cached) → optimise the
+flow net F_θ, the GSO rotation net, the skeleton pose (joint rotations + root translation) and the
+per-bone multipliers, phase by phase → flow the full source, interpolate frames and the skeleton,
+project the target for the correspondence → :class:`MatchResult` in the user's coordinates.
+
+Per step, one point set is flowed through the fixed-grid integrator: all source vertices, fresh
+bone samples (``sampling.bone_samples`` per bone) and a fresh tissue stencil (4 points per
+tissue sample). The objective is
+
+    L = d(X(1), Y)/⟨Y, Y⟩ + μ_surf L_surf + μ_soft L_soft + C(g),
+
+with the data term relative to the target's self-energy (so one set of weights works across
+meshes, scales and σ), L_surf the ARAP term against the GSO-Net on ``sampling.surface_edges``
+random edges, L_soft the tissue stencil term, and C the bone-constraint term: with MDMM,
+C = w · mean_k(λ_k Γ_k + (δ/2) Γ_k²) with Γ_k = max(g_k − ε, 0)/ε for the endpoint and
+(in phases with ``trajectory``) the trajectory constraints, and λ ← max(0, λ + η Γ) after every
+step (gradient ascent, projected on λ ≥ 0); the soft mode uses C = w_soft · mean_k g_k/ε.
+Scaling Γ by 1/ε is the paper's MDMM with λ and δ measured in units of ε.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import __version__
+from .config import Config, PhaseConfig, config_to_dict, preset, validate_config
+from .errors import InputError, NcflowError
+from .flow import GSONet, flow_points, integrate, make_flow_field, time_grid
+from .losses import arap_energy, bone_constraints, sample_edges, tissue_distortion, tissue_stencil
+from .measures import (
+    NormalCycle,
+    Varifold,
+    compress_normal_cycle,
+    compress_varifold,
+    normal_cycle,
+    normal_cycle_inner,
+    varifold,
+    varifold_inner,
+)
+from .mesh import Mesh, Normalization, fit_normalization, load_mesh, mesh_topology
+from .optim import adabelief_cautious, vectoradam_cautious
+from .optim.schedules import warmup_constant, warmup_cosine
+from .skeleton import Skeleton, check_inside, interpolate_joints, load_skeleton, rigid_reference, sample_bones
+from .skeleton.kinematics import Pose, rest_pose
+
+__all__ = ["Matcher", "MatchResult", "TrainingError", "match"]
+
+DTYPE = jnp.float32
+
+
+class TrainingError(NcflowError):
+    """The optimisation failed (a non-finite loss); nothing is written."""
+
+
+# ----------------------------------------------------------------------------------------------
+# progress display
+
+
+class Progress:
+    """Phase, step, loss, largest bone violation and ETA on stderr (one updating line on a
+    terminal, a line every ~5% otherwise); silent when ``quiet``."""
+
+    def __init__(self, total: int, quiet: bool = False, stream=None):
+        self.total = max(1, total)
+        self.quiet = quiet
+        self.stream = stream or sys.stderr
+        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
+        self.start = time.perf_counter()
+        self.every = max(1, self.total // 20)
+        self.last_line = ""
+
+    def message(self, text: str) -> None:
+        if not self.quiet:
+            if self.tty and self.last_line:
+                self.stream.write("\n")
+                self.last_line = ""
+            self.stream.write(text + "\n")
+            self.stream.flush()
+
+    def update(self, done: int, phase: str, loss: float, violation: float) -> None:
+        if self.quiet:
+            return
+        elapsed = time.perf_counter() - self.start
+        eta = elapsed / max(done, 1) * (self.total - done)
+        line = (
+            f"[{phase}] step {done}/{self.total}  loss {loss:.4g}  max bone g/eps {violation:.3g}  "
+            f"elapsed {elapsed:.0f}s  ETA {eta:.0f}s"
+        )
+        if self.tty:
+            self.stream.write("\r" + line.ljust(len(self.last_line)))
+            self.last_line = line
+            self.stream.flush()
+        elif done % self.every == 0 or done == self.total:
+            self.stream.write(line + "\n")
+            self.stream.flush()
+
+    def close(self) -> None:
+        if self.tty and self.last_line and not self.quiet:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+# ----------------------------------------------------------------------------------------------
+# result
+
+
+@dataclasses.dataclass
+class MatchResult:
+    """Everything a match produced, in the user's coordinates.
+
+    Attributes:
+        source, target: the input meshes.
+        skeleton: the source skeleton; ``skeleton_target`` the fitted target pose of it.
+        deformed_source: (V, 3) source vertices flowed to t = 1.
+        frame_times: (K,) times in [0, 1]; ``frames`` (K, V, 3) the interpolation.
+        skeleton_frames: (K, J, 3) joint positions per frame.
+        maps: correspondence (:func:`ncflow.export.correspondence_maps`).
+        metrics: losses, per-bone constraints, timings, config, versions, seed.
+        normalization: the similarity used for training.
+    """
+
+    source: Mesh
+    target: Mesh
+    skeleton: Skeleton
+    skeleton_target: Skeleton
+    deformed_source: np.ndarray
+    frame_times: np.ndarray
+    frames: np.ndarray
+    skeleton_frames: np.ndarray
+    maps: dict
+    metrics: dict
+    normalization: Normalization
+    field: Any = dataclasses.field(repr=False, default=None)
+    n_times: int = 10
+
+    def flow(self, points: np.ndarray, times: np.ndarray | None = None) -> np.ndarray:
+        """Move any points (user coordinates, e.g. a higher-resolution source) by the trained field.
+
+        Returns (N, 3) at t = 1, or (Q, N, 3) at the given times.
+        """
+        p = jnp.asarray(self.normalization.apply(np.asarray(points, np.float64)), DTYPE)
+        if times is None:
+            out = flow_points(self.field, p, self.n_times)[-1]
+        else:
+            out = flow_points(self.field, p, self.n_times, times=jnp.asarray(times, DTYPE))
+        return self.normalization.invert(np.asarray(out, np.float64))
+
+    def save(self, out_dir: str | os.PathLike, overwrite: bool = False) -> Path:
+        """Write the output contract of DESIGN.md into ``out_dir`` (atomically)."""
+        from .export import write_result
+
+        return write_result(
+            out_dir,
+            deformed_source=self.deformed_source,
+            source_faces=self.source.faces,
+            maps=self.maps,
+            frames=self.frames,
+            frame_times=self.frame_times,
+            skeleton_target=self.skeleton_target,
+            skeleton_frames=self.skeleton_frames,
+            parents=self.skeleton.parents,
+            joint_names=list(self.skeleton.names) if self.skeleton.names else None,
+            metrics=self.metrics,
+            overwrite=overwrite,
+        )
+
+
+# ----------------------------------------------------------------------------------------------
+# helpers
+
+
+def _cache_dir() -> Path:
+    base = os.environ.get("NCFLOW_CACHE_DIR") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "ncflow"
+    )
+    return Path(base)
+
+
+def tissue_centroids(vertices: np.ndarray, faces: np.ndarray, config: Config) -> tuple[np.ndarray, dict]:
+    """Tet centroids of the (normalised) source; cached per surface and settings.
+
+    fTetWild is not deterministic (the same surface gives slightly different tets from run to run),
+    so the first tetrahedralisation of a surface is cached (``$NCFLOW_CACHE_DIR``, default
+    ``~/.cache/ncflow``) and reused: repeated runs on one machine are then reproducible.
+    """
+    from .tissue import soft_tissue
+
+    tc = config.tissue
+    h = hashlib.sha256()
+    h.update(np.ascontiguousarray(vertices, np.float64).tobytes())
+    h.update(np.ascontiguousarray(faces, np.int64).tobytes())
+    h.update(repr((tc.edge_length_fac, tc.epsilon, tc.split_passes)).encode())
+    path = _cache_dir() / "tissue" / f"{h.hexdigest()[:32]}.npz"
+    info = {"cached": False}
+    if tc.cache and path.exists():
+        try:
+            data = np.load(path)
+            info.update(cached=True, n_centroids=int(data["centroids"].shape[0]), seconds=0.0)
+            return np.asarray(data["centroids"]), info
+        except Exception:  # a broken cache entry is recomputed
+            pass
+    t0 = time.perf_counter()
+    tissue = soft_tissue(vertices, faces, edge_length_fac=tc.edge_length_fac, epsilon=tc.epsilon, passes=tc.split_passes)
+    info.update(n_tets_initial=int(tissue.n_tets_initial), n_centroids=int(tissue.centroids.shape[0]), seconds=time.perf_counter() - t0)
+    if tc.cache:
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            tmp = path.with_suffix(f".tmp{os.getpid()}.npz")
+            np.savez(tmp, centroids=tissue.centroids)
+            os.replace(tmp, path)
+        except OSError:
+            pass
+    return np.asarray(tissue.centroids), info
+
+
+def _load_inputs(source, target, skeleton) -> tuple[Mesh, Mesh, Skeleton]:
+    src = source if isinstance(source, Mesh) else load_mesh(source)
+    tgt = target if isinstance(target, Mesh) else load_mesh(target)
+    skel = skeleton if isinstance(skeleton, Skeleton) else load_skeleton(skeleton)
+    return src, tgt, skel
+
+
+def _check_skeleton_placement(skel: Skeleton, src: Mesh) -> list[str]:
+    """Warnings for joints slightly outside; an error for joints far outside the source."""
+    far = check_inside(skel, src.vertices, src.faces, surface_tol=0.15, far=0.15)
+    if far:
+        raise InputError(
+            f"skeleton does not fit the source mesh {src.name or ''}: {far[0]}"
+            + (f" (and {len(far) - 1} more)" if len(far) > 1 else "")
+            + "; is it in the same coordinates as the source?",
+            skel.name,
+        )
+    return check_inside(skel, src.vertices, src.faces)
+
+
+@dataclasses.dataclass
+class _Stage:
+    phase: int
+    phase_config: PhaseConfig
+    metric: str
+    sigma: float
+    steps: int
+    start: int  # step within the phase at which this stage starts
+
+
+def _stages(config: Config) -> list[_Stage]:
+    stages = []
+    for i, p in enumerate(config.phases):
+        n = len(p.sigmas)
+        bounds = np.linspace(0, p.steps, n + 1).round().astype(int)
+        for k, sigma in enumerate(p.sigmas):
+            if bounds[k + 1] > bounds[k]:
+                stages.append(_Stage(i, p, p.metric, float(sigma), int(bounds[k + 1] - bounds[k]), int(bounds[k])))
+    return stages
+
+
+def _phase_schedule(p: PhaseConfig) -> Callable[[int], float]:
+    if p.lr_end is None:
+        sched = warmup_constant(p.lr, p.warmup)
+    else:
+        sched = warmup_cosine(p.lr, p.lr_end, p.warmup, max(p.steps, p.warmup + 1))
+    return lambda s: float(sched(s))
+
+
+# ----------------------------------------------------------------------------------------------
+# the matcher
+
+
+class Params(eqx.Module):
+    flow: eqx.Module
+    gso: GSONet
+    pose: Pose
+
+
+class Matcher:
+    """Precomputes everything for one (source, target, skeleton) and runs the optimisation.
+
+    Args:
+        source, target: meshes (or paths); the target may have any triangulation and resolution.
+        skeleton: the source's skeleton (or a path: TGF, JSON, glTF).
+        config: a :class:`~ncflow.config.Config` (default: the ``fast`` preset).
+        quiet: no progress display.
+    """
+
+    def __init__(self, source, target, skeleton, config: Config | None = None, *, quiet: bool = False, stream=None):
+        t0 = time.perf_counter()
+        self.config = validate_config(config or preset("fast"))
+        self.source, self.target, self.skeleton = _load_inputs(source, target, skeleton)
+        self.progress = Progress(self.config.total_steps, quiet, stream)
+        self.warnings = _check_skeleton_placement(self.skeleton, self.source)
+        for w in self.warnings:
+            self.progress.message(f"warning: {w}")
+        cfg = self.config
+        self.norm = fit_normalization(self.source.vertices, self.source.faces)
+        self.src_v = self.norm.apply(self.source.vertices)
+        self.tgt_v = self.norm.apply(self.target.vertices)
+        self.skel_n = self.skeleton.with_positions(self.norm.apply(self.skeleton.positions))
+        self.src_topo = mesh_topology(self.source.faces, self.source.n_vertices, name=self.source.name)
+        self.tgt_topo = mesh_topology(self.target.faces, self.target.n_vertices, name=self.target.name)
+        self.edges = jnp.asarray(self.src_topo.edges)
+        self.radii = self.skel_n.bone_radii(cfg.sampling.bone_radius)
+        self.timings = {"setup": 0.0}
+        # soft tissue
+        t1 = time.perf_counter()
+        if cfg.sampling.tissue_samples > 0 and cfg.weights.tissue > 0:
+            self.progress.message("tetrahedralising the source for soft-tissue samples ...")
+            self.centroids, self.tissue_info = tissue_centroids(self.src_v, self.source.faces, cfg)
+        else:
+            self.centroids, self.tissue_info = np.zeros((0, 3)), {"disabled": True}
+        self.timings["tissue"] = time.perf_counter() - t1
+        # target measures per stage (compressed per length scale)
+        t1 = time.perf_counter()
+        self.stages = _stages(cfg)
+        self.targets: dict[tuple[str, float, float], tuple[Any, float, dict]] = {}
+        ty = jnp.asarray(self.tgt_v, DTYPE)
+        full = {"varifold": varifold(ty, self.target.faces), "normal-cycles": normal_cycle(ty, self.tgt_topo)}
+        for st in self.stages:
+            key = (st.metric, st.sigma, st.phase_config.sigma_normal)
+            if key in self.targets:
+                continue
+            y = full[st.metric]
+            report = {"n": int(y.size), "m": int(y.size), "relative_error": 0.0, "seconds": 0.0}
+            if cfg.compress and y.size > cfg.compress:
+                self.progress.message(f"compressing the target ({st.metric}, sigma={st.sigma:g}) to {cfg.compress} points ...")
+                if st.metric == "varifold":
+                    y, rep = compress_varifold(y, cfg.compress, st.sigma, st.phase_config.sigma_normal, seed=cfg.seed)
+                else:
+                    y, rep = compress_normal_cycle(y, cfg.compress, st.sigma, seed=cfg.seed)
+                report = rep.to_dict()
+            if st.metric == "varifold":
+                yy = float(varifold_inner(y, y, st.sigma, st.phase_config.sigma_normal))
+            else:
+                yy = float(normal_cycle_inner(y, y, st.sigma))
+            if not np.isfinite(yy) or yy <= 0:
+                raise InputError("the target has no measurable surface (zero self-energy)", self.target.name)
+            self.targets[key] = (y, yy, report)
+        self.timings["target"] = time.perf_counter() - t1
+        self.timings["setup"] = time.perf_counter() - t0
+
+    # -- the training step ---------------------------------------------------------------------
+
+    def _optimizer(self):
+        cfg = self.config
+        make = adabelief_cautious if cfg.optimizer == "adabelief" else vectoradam_cautious
+        return make(1.0, weight_decay=cfg.weight_decay, clip_norm=cfg.clip_norm)
+
+    def _make_step(self, metric: str, optimizer):
+        cfg = self.config
+        skel = self.skel_n
+        faces = np.asarray(self.source.faces)
+        topo = self.src_topo
+        src = jnp.asarray(self.src_v, DTYPE)
+        nv = src.shape[0]
+        edges = self.edges
+        n_edges = cfg.sampling.surface_edges if cfg.sampling.surface_edges > 0 else int(edges.shape[0])
+        centroids = jnp.asarray(self.centroids, DTYPE)
+        n_tissue = min(cfg.sampling.tissue_samples, int(centroids.shape[0]))
+        delta = cfg.sampling.tissue_delta
+        n_bone = cfg.sampling.bone_samples
+        n_times = cfg.flow.n_times
+        times = time_grid(n_times, DTYPE)
+        radii = self.radii
+        eps = cfg.constraints.eps
+        c = cfg.constraints
+        w = cfg.weights
+        interp = cfg.interp
+
+        def losses(params: Params, target, sigma, sigma_n, yy, traj_w, lam, key):
+            kb, kt, ke = jax.random.split(key, 3)
+            bones = sample_bones(skel, kb, n_bone, radius=radii, dtype=DTYPE).points  # (B, n, 3)
+            nb = bones.shape[0] * bones.shape[1]
+            parts = [src, bones.reshape(-1, 3)]
+            if n_tissue:
+                tissue = centroids[jax.random.permutation(kt, centroids.shape[0])[:n_tissue]]
+                parts.append(tissue_stencil(tissue, delta))
+            xs, _ = integrate(params.flow, jnp.concatenate(parts), n_times)
+            surf = xs[:, :nv]
+            flowed_bones = xs[:, nv : nv + nb].reshape(n_times, *bones.shape)
+            deformed = surf[-1]
+            if metric == "varifold":
+                x = varifold(deformed, faces)
+                data = varifold_inner(x, x, sigma, sigma_n) - 2.0 * varifold_inner(x, target, sigma, sigma_n) + yy
+            else:
+                x = normal_cycle(deformed, topo)
+                data = normal_cycle_inner(x, x, sigma) - 2.0 * normal_cycle_inner(x, target, sigma) + yy
+            data = data / yy
+            # surface ARAP on random edges, rotations from the GSO-Net at both ends
+            e = sample_edges(ke, edges, n_edges)
+            ends = jnp.concatenate([surf[1:, e[:, 0]], surf[1:, e[:, 1]]], axis=1)  # (T-1, 2n, 3)
+            rot = jax.vmap(params.gso)(ends, times[1:])
+            rest = jnp.concatenate([src[e[:, 0]], src[e[:, 1]]])
+            local = jnp.stack([jnp.arange(e.shape[0]), e.shape[0] + jnp.arange(e.shape[0])], axis=1)
+            surf_loss = arap_energy(rest, local, ends, rot.astype(DTYPE))
+            soft = tissue_distortion(xs[:, nv + nb :], delta) if n_tissue else jnp.zeros((), DTYPE)
+            reference = rigid_reference(skel, params.pose, bones, times, interp)
+            g_ep, g_tr = bone_constraints(flowed_bones, reference)
+            gam_ep = jnp.maximum(g_ep - eps, 0.0) / eps
+            gam_tr = jnp.maximum(g_tr - eps, 0.0) / eps
+            if c.mode == "mdmm":
+                term = lambda lam_, gam: jnp.mean(lam_ * gam + 0.5 * c.damping * gam**2)  # noqa: E731
+                cons = c.weight * (term(lam[0], gam_ep) + traj_w * c.trajectory_weight * term(lam[1], gam_tr))
+            else:
+                cons = c.soft_weight * (jnp.mean(g_ep / eps) + traj_w * c.trajectory_weight * jnp.mean(g_tr / eps))
+            total = data + w.surface * surf_loss + w.tissue * soft + cons
+            aux = {"loss": total, "data": data, "surface": surf_loss, "tissue": soft, "constraint": cons,
+                   "g_ep": g_ep, "g_tr": g_tr, "gam": jnp.stack([gam_ep, gam_tr * traj_w])}
+            return total, aux
+
+        @eqx.filter_jit
+        def step(params, opt_state, lam, target, sigma, sigma_n, yy, traj_w, lr, key):
+            (_, aux), grads = eqx.filter_value_and_grad(losses, has_aux=True)(
+                params, target, sigma, sigma_n, yy, traj_w, lam, key
+            )
+            updates, opt_state = optimizer.update(grads, opt_state, eqx.filter(params, eqx.is_inexact_array))
+            updates = jax.tree_util.tree_map(lambda u: lr * u, updates)
+            params = eqx.apply_updates(params, updates)
+            if c.mode == "mdmm":
+                lam = jnp.maximum(lam + c.multiplier_lr * aux["gam"], 0.0)
+            return params, opt_state, lam, aux
+
+        return step
+
+    def _init_params(self, key) -> Params:
+        cfg = self.config
+        kf, kg = jax.random.split(key)
+        field = make_flow_field(kf, width=cfg.flow.width, depth=cfg.flow.depth, div_free=cfg.flow.div_free, dtype=DTYPE)
+        gso = GSONet(kg, width=cfg.flow.gso_width, depth=cfg.flow.gso_depth, dtype=DTYPE)
+        return Params(field, gso, rest_pose(self.skel_n, DTYPE))
+
+    # -- running -------------------------------------------------------------------------------
+
+    def run(self) -> MatchResult:
+        """Optimise, then build the result (user coordinates)."""
+        cfg = self.config
+        t_train = time.perf_counter()
+        key = jax.random.key(cfg.seed)
+        k_init, k_train, k_eval = jax.random.split(key, 3)
+        params = self._init_params(k_init)
+        optimizer = self._optimizer()
+        opt_state = optimizer.init(eqx.filter(params, eqx.is_inexact_array))
+        lam = jnp.zeros((2, self.skel_n.n_bones), DTYPE)
+        steps_fn = {}
+        history = []
+        done = 0
+        aux = None
+        for st in self.stages:
+            if st.metric not in steps_fn:
+                steps_fn[st.metric] = self._make_step(st.metric, optimizer)
+            step = steps_fn[st.metric]
+            target, yy, _ = self.targets[(st.metric, st.sigma, st.phase_config.sigma_normal)]
+            schedule = _phase_schedule(st.phase_config)
+            traj_w = jnp.asarray(1.0 if st.phase_config.trajectory else 0.0, DTYPE)
+            phase_name = st.phase_config.name or st.metric
+            for s in range(st.steps):
+                lr = jnp.asarray(schedule(st.start + s), DTYPE)
+                params, opt_state, lam, aux = step(
+                    params, opt_state, lam, target, jnp.asarray(st.sigma, DTYPE),
+                    jnp.asarray(st.phase_config.sigma_normal, DTYPE), jnp.asarray(yy, DTYPE), traj_w, lr,
+                    jax.random.fold_in(k_train, done),
+                )
+                done += 1
+                report = done % max(1, self.progress.every // 4 or 1) == 0 or s == st.steps - 1 or self.progress.tty
+                if report:
+                    loss = float(aux["loss"])
+                    if not np.isfinite(loss):
+                        self.progress.close()
+                        raise TrainingError(
+                            f"training diverged at step {done} ({phase_name}, sigma={st.sigma:g}): non-finite loss; "
+                            "try a smaller learning rate (e.g. phases.lr) or check the inputs"
+                        )
+                    viol = float(jnp.max(aux["g_ep"])) / cfg.constraints.eps
+                    self.progress.update(done, f"{phase_name} σ={st.sigma:g}", loss, viol)
+            history.append({
+                "phase": phase_name, "metric": st.metric, "sigma": st.sigma, "steps": st.steps,
+                **{k: float(aux[k]) for k in ("loss", "data", "surface", "tissue", "constraint")},
+            })
+        self.progress.close()
+        leaves = jax.tree_util.tree_leaves(eqx.filter(params, eqx.is_inexact_array))
+        if not all(bool(jnp.all(jnp.isfinite(leaf))) for leaf in leaves):
+            raise TrainingError("training produced non-finite parameters")
+        train_seconds = time.perf_counter() - t_train
+        t_out = time.perf_counter()
+        result = self._result(params, lam, history, k_eval)
+        result.metrics["timings"].update(train=train_seconds, per_step=train_seconds / max(done, 1),
+                                         outputs=time.perf_counter() - t_out)
+        result.metrics["timings"]["total"] = sum(v for k, v in result.metrics["timings"].items() if k in ("setup", "train", "outputs"))
+        return result
+
+    def _final_constraints(self, params: Params, key) -> tuple[np.ndarray, np.ndarray]:
+        cfg = self.config
+        bones = sample_bones(self.skel_n, key, 50, radius=self.radii, dtype=DTYPE).points
+        xs = flow_points(params.flow, bones.reshape(-1, 3), cfg.flow.n_times).reshape(cfg.flow.n_times, *bones.shape)
+        ref = rigid_reference(self.skel_n, params.pose, bones, time_grid(cfg.flow.n_times, DTYPE), cfg.interp)
+        g_ep, g_tr = bone_constraints(xs, ref)
+        return np.asarray(g_ep, np.float64), np.asarray(g_tr, np.float64)
+
+    def _result(self, params: Params, lam, history, key) -> MatchResult:
+        from .export import correspondence_maps
+
+        cfg = self.config
+        norm = self.norm
+        frame_times = np.linspace(0.0, 1.0, cfg.frames)
+        src = jnp.asarray(self.src_v, DTYPE)
+        frames_n = np.asarray(flow_points(params.flow, src, cfg.flow.n_times, times=jnp.asarray(frame_times, DTYPE)), np.float64)
+        frames_n[0] = self.src_v  # t = 0 is the source exactly
+        deformed_n = np.asarray(flow_points(params.flow, src, cfg.flow.n_times)[-1], np.float64)
+        frames_n[-1] = deformed_n
+        if not (np.all(np.isfinite(frames_n)) and np.all(np.isfinite(deformed_n))):
+            raise TrainingError("the trained flow produced non-finite positions")
+        joints = np.stack([
+            np.asarray(interpolate_joints(self.skel_n, params.pose, float(t), cfg.interp), np.float64) for t in frame_times
+        ])
+        maps = correspondence_maps(self.src_v, self.source.faces, deformed_n, self.tgt_v, self.target.faces)
+        g_ep, g_tr = self._final_constraints(params, key)
+        eps = cfg.constraints.eps
+        names = self.skeleton.names or tuple(f"joint {j}" for j in range(self.skeleton.n_joints))
+        bones = [
+            {
+                "bone": f"{names[self.skeleton.parents[j]]} -> {names[j]}",
+                "g_endpoint": float(g_ep[j - 1]),
+                "g_trajectory": float(g_tr[j - 1]),
+                "rms_distance_endpoint": float(np.sqrt(g_ep[j - 1]) / norm.scale),
+                "satisfied": bool(g_ep[j - 1] <= eps and g_tr[j - 1] <= eps),
+                "multiplier_endpoint": float(lam[0, j - 1]),
+                "multiplier_trajectory": float(lam[1, j - 1]),
+            }
+            for j in range(1, self.skeleton.n_joints)
+        ]
+        import scipy
+        import trimesh
+
+        metrics = {
+            "ncflow_version": __version__,
+            "seed": cfg.seed,
+            "source": self.source.name,
+            "target": self.target.name,
+            "skeleton": self.skeleton.name,
+            "n_source_vertices": self.source.n_vertices,
+            "n_target_vertices": self.target.n_vertices,
+            "n_bones": self.skeleton.n_bones,
+            "phases": history,
+            "constraints": {
+                "mode": cfg.constraints.mode,
+                "eps": eps,
+                "units": "g = mean squared distance in normalised units (source volume 4*pi/3); rms_distance in user units",
+                "max_g_endpoint": float(g_ep.max()),
+                "max_g_trajectory": float(g_tr.max()),
+                "max_violation_ratio": float(max(g_ep.max(), g_tr.max()) / eps),
+                "all_satisfied": bool(np.all(g_ep <= eps) and np.all(g_tr <= eps)),
+                "bones": bones,
+            },
+            "correspondence": {
+                "mean_distance_target_to_flowed_source": float(np.mean(maps["dist_tgt_to_src"]) / norm.scale),
+                "mean_distance_flowed_source_to_target": float(np.mean(maps["dist_src_to_tgt"]) / norm.scale),
+            },
+            "compression": {f"{k[0]} sigma={k[1]:g}": v[2] for k, v in self.targets.items()},
+            "tissue": self.tissue_info,
+            "normalization": norm.to_dict(),
+            "warnings": list(self.warnings),
+            "timings": dict(self.timings),
+            "config": config_to_dict(cfg),
+            "versions": {
+                "python": platform.python_version(),
+                "jax": jax.__version__,
+                "numpy": np.__version__,
+                "scipy": scipy.__version__,
+                "trimesh": trimesh.__version__,
+                "equinox": eqx.__version__,
+                "platform": platform.platform(),
+                "device": str(jax.devices()[0]),
+            },
+        }
+        skeleton_target = self.skeleton.with_positions(norm.invert(joints[-1]))
+        return MatchResult(
+            source=self.source,
+            target=self.target,
+            skeleton=self.skeleton,
+            skeleton_target=skeleton_target,
+            deformed_source=norm.invert(deformed_n),
+            frame_times=frame_times,
+            frames=norm.invert(frames_n),
+            skeleton_frames=norm.invert(joints),
+            maps=maps,
+            metrics=metrics,
+            normalization=norm,
+            field=params.flow,
+            n_times=cfg.flow.n_times,
+        )
+
+
+def match(source, target, skeleton, config: Config | None = None, *, quiet: bool = False, stream=None) -> MatchResult:
+    """Match ``source`` to ``target`` with the source's ``skeleton`` (meshes/skeleton or file paths).
+
+    Returns a :class:`MatchResult` (call ``.save(out_dir)`` for the output contract).
+    """
+    return Matcher(source, target, skeleton, config, quiet=quiet, stream=stream).run()
