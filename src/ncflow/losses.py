@@ -45,17 +45,17 @@ from .measures.normal_cycles import safe_normalize
 
 __all__ = [
     "DEFAULT_TISSUE_DELTA",
-    "tissue_stencil",
-    "split_stencil",
-    "tissue_frame_energy",
-    "tissue_distortion",
     "arap_energy",
-    "surface_distortion",
-    "sample_edges",
-    "edge_points",
+    "bone_constraints",
     "bone_endpoint_constraint",
     "bone_trajectory_constraint",
-    "bone_constraints",
+    "edge_points",
+    "sample_edges",
+    "split_stencil",
+    "surface_distortion",
+    "tissue_distortion",
+    "tissue_frame_energy",
+    "tissue_stencil",
 ]
 
 DEFAULT_TISSUE_DELTA = 0.01
@@ -92,7 +92,9 @@ def split_stencil(
     return centres, frames
 
 
-def tissue_frame_energy(frames: Float[Array, "... 3 3"], delta: float = DEFAULT_TISSUE_DELTA) -> Float[Array, "..."]:
+def tissue_frame_energy(
+    frames: Float[Array, "*batch 3 3"], delta: float = DEFAULT_TISSUE_DELTA
+) -> Float[Array, "*batch"]:
     """ℓ = Σ_{m,m'} (D̂_m·D̂_m' − [m = m'])² + Σ_m (δ − ‖D_m‖)²/δ² per frame (rows D_m)."""
     unit, norm = safe_normalize(frames)
     gram = jnp.einsum("...mi,...ni->...mn", unit, unit)

@@ -52,17 +52,17 @@ from .errors import InputError
 from .mesh import close_boundary
 
 __all__ = [
-    "Tissue",
-    "soft_tissue",
-    "tetrahedralize_surface",
-    "split_tets",
-    "tet_volumes",
-    "tet_centroids",
-    "sample_tissue",
     "DEFAULT_EDGE_LENGTH_FAC",
     "DEFAULT_EPSILON",
-    "DEFAULT_VOLUME_FACTOR",
     "DEFAULT_SPLIT_PASSES",
+    "DEFAULT_VOLUME_FACTOR",
+    "Tissue",
+    "sample_tissue",
+    "soft_tissue",
+    "split_tets",
+    "tet_centroids",
+    "tet_volumes",
+    "tetrahedralize_surface",
 ]
 
 DEFAULT_EDGE_LENGTH_FAC = 0.1
@@ -337,7 +337,9 @@ def soft_tissue(
 
     :func:`tetrahedralize_surface` then :func:`split_tets`; see both for the arguments.
     """
-    tv, tt = tetrahedralize_surface(vertices, faces, edge_length_fac=edge_length_fac, epsilon=epsilon, num_threads=num_threads)
+    tv, tt = tetrahedralize_surface(
+        vertices, faces, edge_length_fac=edge_length_fac, epsilon=epsilon, num_threads=num_threads
+    )
     n0 = int(tt.shape[0])
     sv, st = split_tets(tv, tt, volume_factor=volume_factor, passes=passes, edge_ratio=edge_ratio)
     return Tissue(sv, st, tet_centroids(sv, st), tet_volumes(sv, st), n0)

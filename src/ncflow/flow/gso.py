@@ -9,18 +9,20 @@ mapped to the 6-D rotation code (Zhou et al. 2019)
     ō = s · o + (1, 0, 0, 0, 1, 0),      s = ``out_scale`` = 0.1,
 
 and Gram–Schmidt gives R = [a, b, a × b] (columns), a = ō₀:₃/‖ō₀:₃‖,
-b = normalize(ō₃:₆ − (a·ō₃:₆) a). The bias (1,0,0, 0,1,0) is the code of the identity, so a fresh
-net predicts rotations close to the identity (measured: at most ≈1° on standard-normal inputs). The authors' release
-adds (1,0,0, 1,0,0) instead — both halves parallel, so its second column is set by the small
-perpendicular part of the network output and a fresh net returns rotations of 12°–111°
-(reference-notes §7.2); we do not reproduce that bug.
+b = normalize(ō₃:₆ − (a·ō₃:₆) a). The bias (1,0,0, 0,1,0) is the code of the identity, so a
+fresh net predicts rotations close to the identity (measured: at most ≈1° on standard-normal
+inputs). The authors' release adds (1,0,0, 1,0,0) instead — both halves parallel, so its second
+column is set by the small perpendicular part of the network output and a fresh net returns
+rotations of 12°–111° (reference-notes §7.2); we do not reproduce that bug.
 
 Lipschitz normalisation (release: per-layer row scaling by min(1, softplus(c)/Σ_j|W_ij|) with a
 trainable c initialised to the largest absolute row sum, plus a penalty Π softplus(c) with weight
-1e-10) is **not** implemented: with c at its initial value the scaling is the identity, and the
-penalty weight is too small to move c, so it is inert in practice. :meth:`GSONet.lipschitz_bound`
-returns the product of the layers' ∞-norms (an upper bound of the Lipschitz constant of the MLP
-in the ∞-norm, GELU being 1.13-Lipschitz is ignored) for monitoring or for a penalty if wanted.
+1e-10) is **not** implemented. At initialisation that scaling is (almost) the identity; later it
+only caps rows whose absolute sum grows past softplus(c), while c is itself trained and the 1e-10
+penalty barely restrains it. We judged the extra parametrisation not worth it.
+:meth:`GSONet.lipschitz_bound` returns out_scale × Π_ℓ ‖W_ℓ‖_∞ (the Lipschitz constant of the
+code map in the ∞-norm is at most this times 1.13^depth, 1.13 bounding the slope of GELU), for
+monitoring or for an explicit penalty if one is wanted.
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
 
-__all__ = ["GSONet", "rotation_from_6d", "rotation_angle", "IDENTITY_6D"]
+__all__ = ["IDENTITY_6D", "GSONet", "rotation_angle", "rotation_from_6d"]
 
 IDENTITY_6D = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0)
 """The 6-D code of the identity rotation: first two columns of I."""
@@ -39,14 +41,14 @@ DEFAULT_GSO_DEPTH = 3
 DEFAULT_OUT_SCALE = 0.1
 
 
-def _normalize(v: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
+def _normalize(v: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3"]:
     """v/‖v‖ with a floor on ‖v‖² (NaN-free; the codes here are never near zero in practice)."""
     sq = jnp.sum(v * v, axis=-1, keepdims=True)
     tiny = jnp.asarray(1e-36 if v.dtype == jnp.float64 else 1e-30, v.dtype)
     return v / jnp.sqrt(jnp.maximum(sq, tiny))
 
 
-def rotation_from_6d(code: Float[Array, "... 6"]) -> Float[Array, "... 3 3"]:
+def rotation_from_6d(code: Float[Array, "*batch 6"]) -> Float[Array, "*batch 3 3"]:
     """Gram–Schmidt of a 6-D code into a rotation matrix R = [a, b, a × b] (columns), det R = +1.
 
     a = normalize(code[0:3]), b = normalize(code[3:6] − (a·code[3:6]) a). The code
@@ -59,7 +61,7 @@ def rotation_from_6d(code: Float[Array, "... 6"]) -> Float[Array, "... 3 3"]:
     return jnp.stack([a, b, c], axis=-1)
 
 
-def rotation_angle(r: Float[Array, "... 3 3"]) -> Float[Array, "..."]:
+def rotation_angle(r: Float[Array, "*batch 3 3"]) -> Float[Array, "*batch"]:
     """Rotation angle in radians, arccos((tr R − 1)/2) clipped to [0, π] (diagnostics and tests)."""
     cos = 0.5 * (jnp.trace(r, axis1=-2, axis2=-1) - 1.0)
     return jnp.arccos(jnp.clip(cos, -1.0, 1.0))
