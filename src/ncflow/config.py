@@ -109,7 +109,7 @@ class ConstraintConfig:
     mode: str = "mdmm"
     eps: float = 3e-4
     damping: float = 1.0
-    multiplier_lr: float = 0.1
+    multiplier_lr: float = 0.3
     weight: float = 1.0
     soft_weight: float = 1.0
     trajectory_weight: float = 1.0
@@ -146,6 +146,7 @@ class Config:
     weights: WeightsConfig = field(default_factory=WeightsConfig)
     tissue: TissueConfig = field(default_factory=TissueConfig)
     optimizer: str = "adabelief"
+    pose_lr_scale: float = 10.0
     clip_norm: float = 0.5
     weight_decay: float = 1e-4
     interp: str = "sclerp"
@@ -161,7 +162,7 @@ def _fast() -> Config:
     return Config(
         preset="fast",
         phases=(
-            PhaseConfig(name="varifold", metric="varifold", steps=150, sigmas=(0.5, 0.25), lr=3e-3, warmup=10, trajectory=False),
+            PhaseConfig(name="varifold", metric="varifold", steps=150, sigmas=(0.5, 0.25), lr=3e-3, warmup=10),
             PhaseConfig(name="normal-cycles", metric="normal-cycles", steps=250, sigmas=(0.25, 0.1), lr=3e-3, lr_end=3e-4, warmup=10),
         ),
     )
@@ -180,6 +181,7 @@ def _paper() -> Config:
         constraints=ConstraintConfig(eps=3e-4),
         weights=WeightsConfig(surface=20.0, tissue=10.0),
         tissue=TissueConfig(edge_length_fac=0.05, epsilon=1e-3, split_passes=2),
+        pose_lr_scale=1.0,
         compress=6000,
         frames=100,
     )
@@ -352,6 +354,7 @@ def validate_config(config: Config) -> Config:
         (config.interp in ("sclerp", "slerp"), "interp must be 'sclerp' or 'slerp'"),
         (config.compress is None or config.compress >= 10, "compress must be at least 10 (or none)"),
         (config.frames >= 2, "frames must be at least 2"),
+        (config.pose_lr_scale >= 0, "pose_lr_scale must be non-negative"),
         (len(config.phases) >= 1, "at least one phase is needed"),
     ]
     for ok, message in checks:

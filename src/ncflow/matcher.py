@@ -17,8 +17,10 @@ with the data term relative to the target's self-energy (so one set of weights w
 meshes, scales and σ), L_surf the ARAP term against the GSO-Net on ``sampling.surface_edges``
 random edges, L_soft the tissue stencil term, and C the bone-constraint term: with MDMM,
 C = w · mean_k(λ_k Γ_k + (δ/2) Γ_k²) with Γ_k = max(g_k − ε, 0)/ε for the endpoint and
-(in phases with ``trajectory``) the trajectory constraints, and λ ← max(0, λ + η Γ) after every
-step (gradient ascent, projected on λ ≥ 0); the soft mode uses C = w_soft · mean_k g_k/ε.
+(in phases with ``trajectory``) the trajectory constraints, and λ ← max(0, λ + η sign(g − ε))
+after every step: normalised gradient ascent on λ projected on λ ≥ 0 (the release moves its
+multipliers with its sign-like Adam steps, which is the same normalisation); λ grows while a bone
+is violated and relaxes once it is satisfied. The soft mode uses C = w_soft · mean_k g_k/ε.
 Scaling Γ by 1/ε is the paper's MDMM with λ and δ measured in units of ε.
 """
 
@@ -410,8 +412,8 @@ class Matcher:
             soft = tissue_distortion(xs[:, nv + nb :], delta) if n_tissue else jnp.zeros((), DTYPE)
             reference = rigid_reference(skel, params.pose, bones, times, interp)
             g_ep, g_tr = bone_constraints(flowed_bones, reference)
-            gam_ep = jnp.maximum(g_ep - eps, 0.0) / eps
-            gam_tr = jnp.maximum(g_tr - eps, 0.0) / eps
+            gam_ep = jnp.maximum(g_ep - eps, 0.0)
+            gam_tr = jnp.maximum(g_tr - eps, 0.0)
             if c.mode == "mdmm":
                 term = lambda lam_, gam: jnp.mean(lam_ * gam + 0.5 * c.damping * gam**2)  # noqa: E731
                 cons = c.weight * (term(lam[0], gam_ep) + traj_w * c.trajectory_weight * term(lam[1], gam_tr))
@@ -429,9 +431,14 @@ class Matcher:
             )
             updates, opt_state = optimizer.update(grads, opt_state, eqx.filter(params, eqx.is_inexact_array))
             updates = jax.tree_util.tree_map(lambda u: lr * u, updates)
+            updates = eqx.tree_at(
+                lambda u: u.pose, updates, jax.tree_util.tree_map(lambda u: cfg.pose_lr_scale * u, updates.pose)
+            )
             params = eqx.apply_updates(params, updates)
             if c.mode == "mdmm":
-                lam = jnp.maximum(lam + c.multiplier_lr * aux["gam"], 0.0)
+                g = jnp.stack([aux["g_ep"], aux["g_tr"]])
+                active = jnp.stack([jnp.ones_like(traj_w), traj_w])[:, None]
+                lam = jnp.maximum(lam + c.multiplier_lr * active * jnp.sign(g - eps), 0.0)
             return params, opt_state, lam, aux
 
         return step
