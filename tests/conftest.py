@@ -6,3 +6,10 @@ Library code follows the dtype of its inputs; tests of float32 behaviour pass fl
 import jax
 
 jax.config.update("jax_enable_x64", True)
+
+
+import os  # noqa: E402
+import tempfile  # noqa: E402
+
+# keep the tetrahedralisation cache of test runs out of the user's home
+os.environ.setdefault("NCFLOW_CACHE_DIR", tempfile.mkdtemp(prefix="ncflow-test-cache-"))

@@ -17,8 +17,8 @@ with the data term relative to the target's self-energy (so one set of weights w
 meshes, scales and σ), L_surf the ARAP term against the GSO-Net on ``sampling.surface_edges``
 random edges, L_soft the tissue stencil term, and C the bone-constraint term: with MDMM,
 C = w · mean_k(λ_k Γ_k + (δ/2) Γ_k²) with Γ_k = max(g_k − ε, 0)/ε for the endpoint and
-(in phases with ``trajectory``) the trajectory constraints, and λ ← max(0, λ + η sign(g − ε))
-after every step: normalised gradient ascent on λ projected on λ ≥ 0 (the release moves its
+(in phases with ``trajectory``) the trajectory constraints, and λ ← max(0, λ + η_t sign(g − ε))
+after every step, with η_t ramping linearly from 0 to 2η over the run: normalised gradient ascent on λ projected on λ ≥ 0 (the release moves its
 multipliers with its sign-like Adam steps, which is the same normalisation); λ grows while a bone
 is violated and relaxes once it is satisfied. The soft mode uses C = w_soft · mean_k g_k/ε.
 Scaling Γ by 1/ε is the paper's MDMM with λ and δ measured in units of ε.
@@ -37,6 +37,7 @@ from typing import Any, Callable
 
 import equinox as eqx
 import jax
+import jax.flatten_util
 import jax.numpy as jnp
 import numpy as np
 
@@ -287,7 +288,37 @@ def _phase_schedule(p: PhaseConfig) -> Callable[[int], float]:
 class Params(eqx.Module):
     flow: eqx.Module
     gso: GSONet
-    pose: Pose
+
+
+def fit_pose(
+    skeleton: Skeleton, pose: Pose, rest_points, flowed, times, interp: str, iterations: int = 2, max_step: float = 0.1
+) -> Pose:
+    """Least-squares articulated fit of flowed bone samples: Gauss–Newton on the pose parameters.
+
+    Minimises Σ_t Σ_k Σ_s ‖p̄_k,s(t; pose) − x_k,s(t)‖² over the joint rotations and the root
+    translation, warm-started from ``pose`` (Levenberg damping 1e-6·tr(JᵀJ)/P handles the gauge
+    directions: quaternion scale, rotations of leaf joints); each step is capped at ``max_step`` per
+    parameter (a trust region, so a poor flow early on cannot fling the skeleton). ``flowed``
+    (T, B, n, 3) is treated as data.
+    """
+    flat0, unravel = jax.flatten_util.ravel_pytree(pose)
+
+    def residual(flat):
+        return (rigid_reference(skeleton, unravel(flat), rest_points, times, interp) - flowed).reshape(-1)
+
+    flat = flat0
+    for _ in range(iterations):
+        r = residual(flat)
+        jac = jax.jacfwd(residual)(flat)
+        a = jac.T @ jac
+        mu = 1e-6 * jnp.trace(a) / a.shape[0] + 1e-12
+        delta = jnp.linalg.solve(a + mu * jnp.eye(a.shape[0], dtype=a.dtype), jac.T @ r)
+        delta = delta * jnp.minimum(1.0, max_step / (jnp.max(jnp.abs(delta)) + 1e-12))  # trust region
+        flat = flat - delta
+        new = unravel(flat)
+        rot = new.rotations / jnp.linalg.norm(new.rotations, axis=-1, keepdims=True)
+        flat = jax.flatten_util.ravel_pytree(Pose(rot, new.translation))[0]
+    return unravel(flat)
 
 
 class Matcher:
@@ -383,7 +414,7 @@ class Matcher:
         w = cfg.weights
         interp = cfg.interp
 
-        def losses(params: Params, target, sigma, sigma_n, yy, traj_w, lam, key):
+        def losses(params: Params, pose, target, sigma, sigma_n, yy, traj_w, lam, key):
             kb, kt, ke = jax.random.split(key, 3)
             bones = sample_bones(skel, kb, n_bone, radius=radii, dtype=DTYPE).points  # (B, n, 3)
             nb = bones.shape[0] * bones.shape[1]
@@ -410,7 +441,9 @@ class Matcher:
             local = jnp.stack([jnp.arange(e.shape[0]), e.shape[0] + jnp.arange(e.shape[0])], axis=1)
             surf_loss = arap_energy(rest, local, ends, rot.astype(DTYPE))
             soft = tissue_distortion(xs[:, nv + nb :], delta) if n_tissue else jnp.zeros((), DTYPE)
-            reference = rigid_reference(skel, params.pose, bones, times, interp)
+            pose = fit_pose(skel, pose, bones, jax.lax.stop_gradient(flowed_bones), times, interp)
+            pose = jax.lax.stop_gradient(pose)
+            reference = rigid_reference(skel, pose, bones, times, interp)
             g_ep, g_tr = bone_constraints(flowed_bones, reference)
             gam_ep = jnp.maximum(g_ep - eps, 0.0)
             gam_tr = jnp.maximum(g_tr - eps, 0.0)
@@ -421,25 +454,23 @@ class Matcher:
                 cons = c.soft_weight * (jnp.mean(g_ep / eps) + traj_w * c.trajectory_weight * jnp.mean(g_tr / eps))
             total = data + w.surface * surf_loss + w.tissue * soft + cons
             aux = {"loss": total, "data": data, "surface": surf_loss, "tissue": soft, "constraint": cons,
-                   "g_ep": g_ep, "g_tr": g_tr, "gam": jnp.stack([gam_ep, gam_tr * traj_w])}
+                   "g_ep": g_ep, "g_tr": g_tr, "gam": jnp.stack([gam_ep, gam_tr * traj_w]), "pose": pose}
             return total, aux
 
         @eqx.filter_jit
-        def step(params, opt_state, lam, target, sigma, sigma_n, yy, traj_w, lr, key):
+        def step(params, pose, opt_state, lam, target, sigma, sigma_n, yy, traj_w, lr, progress, key):
             (_, aux), grads = eqx.filter_value_and_grad(losses, has_aux=True)(
-                params, target, sigma, sigma_n, yy, traj_w, lam, key
+                params, pose, target, sigma, sigma_n, yy, traj_w, lam, key
             )
             updates, opt_state = optimizer.update(grads, opt_state, eqx.filter(params, eqx.is_inexact_array))
             updates = jax.tree_util.tree_map(lambda u: lr * u, updates)
-            updates = eqx.tree_at(
-                lambda u: u.pose, updates, jax.tree_util.tree_map(lambda u: cfg.pose_lr_scale * u, updates.pose)
-            )
             params = eqx.apply_updates(params, updates)
             if c.mode == "mdmm":
                 g = jnp.stack([aux["g_ep"], aux["g_tr"]])
                 active = jnp.stack([jnp.ones_like(traj_w), traj_w])[:, None]
-                lam = jnp.maximum(lam + c.multiplier_lr * active * jnp.sign(g - eps), 0.0)
-            return params, opt_state, lam, aux
+                rate = c.multiplier_lr * 2.0 * progress  # ramps 0 -> 2η: free early, tight late
+                lam = jnp.maximum(lam + rate * active * jnp.sign(g - eps), 0.0)
+            return params, aux.pop("pose"), opt_state, lam, aux
 
         return step
 
@@ -448,7 +479,7 @@ class Matcher:
         kf, kg = jax.random.split(key)
         field = make_flow_field(kf, width=cfg.flow.width, depth=cfg.flow.depth, div_free=cfg.flow.div_free, dtype=DTYPE)
         gso = GSONet(kg, width=cfg.flow.gso_width, depth=cfg.flow.gso_depth, dtype=DTYPE)
-        return Params(field, gso, rest_pose(self.skel_n, DTYPE))
+        return Params(field, gso)
 
     # -- running -------------------------------------------------------------------------------
 
@@ -459,6 +490,7 @@ class Matcher:
         key = jax.random.key(cfg.seed)
         k_init, k_train, k_eval = jax.random.split(key, 3)
         params = self._init_params(k_init)
+        pose = rest_pose(self.skel_n, DTYPE)
         optimizer = self._optimizer()
         opt_state = optimizer.init(eqx.filter(params, eqx.is_inexact_array))
         lam = jnp.zeros((2, self.skel_n.n_bones), DTYPE)
@@ -476,10 +508,10 @@ class Matcher:
             phase_name = st.phase_config.name or st.metric
             for s in range(st.steps):
                 lr = jnp.asarray(schedule(st.start + s), DTYPE)
-                params, opt_state, lam, aux = step(
-                    params, opt_state, lam, target, jnp.asarray(st.sigma, DTYPE),
+                params, pose, opt_state, lam, aux = step(
+                    params, pose, opt_state, lam, target, jnp.asarray(st.sigma, DTYPE),
                     jnp.asarray(st.phase_config.sigma_normal, DTYPE), jnp.asarray(yy, DTYPE), traj_w, lr,
-                    jax.random.fold_in(k_train, done),
+                    jnp.asarray(done / cfg.total_steps, DTYPE), jax.random.fold_in(k_train, done),
                 )
                 done += 1
                 report = done % max(1, self.progress.every // 4 or 1) == 0 or s == st.steps - 1 or self.progress.tty
@@ -503,21 +535,23 @@ class Matcher:
             raise TrainingError("training produced non-finite parameters")
         train_seconds = time.perf_counter() - t_train
         t_out = time.perf_counter()
-        result = self._result(params, lam, history, k_eval)
+        result = self._result(params, pose, lam, history, k_eval)
         result.metrics["timings"].update(train=train_seconds, per_step=train_seconds / max(done, 1),
                                          outputs=time.perf_counter() - t_out)
         result.metrics["timings"]["total"] = sum(v for k, v in result.metrics["timings"].items() if k in ("setup", "train", "outputs"))
         return result
 
-    def _final_constraints(self, params: Params, key) -> tuple[np.ndarray, np.ndarray]:
+    def _final_constraints(self, params: Params, pose: Pose, key) -> tuple[np.ndarray, np.ndarray]:
         cfg = self.config
         bones = sample_bones(self.skel_n, key, 50, radius=self.radii, dtype=DTYPE).points
         xs = flow_points(params.flow, bones.reshape(-1, 3), cfg.flow.n_times).reshape(cfg.flow.n_times, *bones.shape)
-        ref = rigid_reference(self.skel_n, params.pose, bones, time_grid(cfg.flow.n_times, DTYPE), cfg.interp)
+        times = time_grid(cfg.flow.n_times, DTYPE)
+        pose = fit_pose(self.skel_n, pose, bones, xs, times, cfg.interp, iterations=3)
+        ref = rigid_reference(self.skel_n, pose, bones, times, cfg.interp)
         g_ep, g_tr = bone_constraints(xs, ref)
         return np.asarray(g_ep, np.float64), np.asarray(g_tr, np.float64)
 
-    def _result(self, params: Params, lam, history, key) -> MatchResult:
+    def _result(self, params: Params, pose: Pose, lam, history, key) -> MatchResult:
         from .export import correspondence_maps
 
         cfg = self.config
@@ -531,10 +565,10 @@ class Matcher:
         if not (np.all(np.isfinite(frames_n)) and np.all(np.isfinite(deformed_n))):
             raise TrainingError("the trained flow produced non-finite positions")
         joints = np.stack([
-            np.asarray(interpolate_joints(self.skel_n, params.pose, float(t), cfg.interp), np.float64) for t in frame_times
+            np.asarray(interpolate_joints(self.skel_n, pose, float(t), cfg.interp), np.float64) for t in frame_times
         ])
         maps = correspondence_maps(self.src_v, self.source.faces, deformed_n, self.tgt_v, self.target.faces)
-        g_ep, g_tr = self._final_constraints(params, key)
+        g_ep, g_tr = self._final_constraints(params, pose, key)
         eps = cfg.constraints.eps
         names = self.skeleton.names or tuple(f"joint {j}" for j in range(self.skeleton.n_joints))
         bones = [
