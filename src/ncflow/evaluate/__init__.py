@@ -61,3 +61,36 @@ __all__ = [
     "vertex_surface_points",
     "volume_change",
 ]
+
+# Reports (ncflow evaluate) and the benchmark runner (ncflow benchmark): appended exports.
+from .benchmark import (
+    ABLATIONS,
+    BenchmarkResult,
+    PairSpec,
+    benchmark_methods,
+    read_pairs_csv,
+    run_benchmark,
+)
+from .report import (
+    Evaluation,
+    evaluate_result,
+    evaluation_text,
+    json_safe,
+    write_benchmark_report,
+    write_evaluation,
+)
+
+__all__ += [
+    "ABLATIONS",
+    "BenchmarkResult",
+    "Evaluation",
+    "PairSpec",
+    "benchmark_methods",
+    "evaluate_result",
+    "evaluation_text",
+    "json_safe",
+    "read_pairs_csv",
+    "run_benchmark",
+    "write_benchmark_report",
+    "write_evaluation",
+]

@@ -1,0 +1,413 @@
+"""Benchmark runner: match and evaluate every pair of a ``pairs.csv`` (per method), then report.
+
+Input: a csv with columns ``name, source, target, skeleton, gt`` and optionally ``gt_format`` and
+``dataset`` (the file :func:`ncflow.pairs.write_pairs` / ``ncflow make-pairs`` writes); paths are
+relative to the csv. ``gt`` is ``identity``, a ground-truth file, or two template ``.vts`` files
+separated by ``;`` (with ``gt_format`` ``template``). Every row is checked (columns, files, names)
+before anything runs.
+
+Layout of ``OUT``::
+
+    runs/<method>/config.json          the method's configuration (a later run must match it)
+    runs/<method>/<pair>/              the output contract of ncflow match, plus
+    runs/<method>/<pair>/evaluation.json and eval_*.png   (ncflow evaluate)
+    report.json, report.md, curves_<dataset>.png
+
+Resuming: a run whose ``evaluation.json`` exists is skipped; a run whose result folder is complete
+(``metrics.json`` present; results are written atomically) but has no ``evaluation.json`` is only
+evaluated; anything else is matched and evaluated. So an interrupted benchmark continues where it
+stopped when the same command is run again. A run that fails (a training error, bad input found
+late) is recorded in the report and the others go on; running the command again retries it.
+
+Methods: one (``ncflow``: the given configuration) or, with ``ablations=True``, the paper's Table 1
+rows as configuration variants of the given configuration (:data:`ABLATIONS`).
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import os
+import re
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from ..config import Config, config_to_dict, with_metric
+from ..errors import InputError
+from .ground_truth import GT_FORMATS
+from .report import EVALUATION_FILE, run_row, write_benchmark_report
+
+__all__ = [
+    "ABLATIONS",
+    "REQUIRED_COLUMNS",
+    "BenchmarkResult",
+    "Method",
+    "PairSpec",
+    "RunTask",
+    "ablation_config",
+    "benchmark_methods",
+    "read_pairs_csv",
+    "run_benchmark",
+    "run_task",
+]
+
+REQUIRED_COLUMNS = ("name", "source", "target", "skeleton", "gt")
+OPTIONAL_COLUMNS = ("gt_format", "dataset")
+
+# id, label, description, metric, interp, constraints (paper Table 1 rows)
+ABLATIONS = (
+    ("var-slerp-soft", "Var+SLERP+soft", "ARC-Flow style: Varifold only, world-space SLERP, soft bone constraints",
+     "varifold", "slerp", "soft"),
+    ("var-dq", "Var+DQ", "Varifold only, dual-quaternion ScLERP, soft bone constraints", "varifold", "sclerp", "soft"),
+    ("var-dq-co", "Var+DQ+CO", "Varifold only, ScLERP, MDMM-constrained bones", "varifold", "sclerp", "mdmm"),
+    ("nc-dq-co", "NC+DQ+CO", "Normal Cycles only, ScLERP, MDMM-constrained bones", "normal-cycles", "sclerp", "mdmm"),
+    ("full", "full", "Varifold then Normal Cycles, ScLERP, MDMM (the default)", "varifold+normal-cycles", "sclerp", "mdmm"),
+)
+_NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
+
+
+# ----------------------------------------------------------------------------------------------
+# Pairs
+
+
+@dataclasses.dataclass(frozen=True)
+class PairSpec:
+    """One row of a pairs csv, paths resolved against the csv's folder.
+
+    ``gt`` is ``"identity"``, a path, or a pair of paths (template maps).
+    """
+
+    name: str
+    source: str
+    target: str
+    skeleton: str
+    gt: str | tuple[str, str]
+    gt_format: str | None
+    dataset: str
+
+
+def _resolve(base: Path, value: str) -> str:
+    p = Path(value)
+    return str(p if p.is_absolute() else base / p)
+
+
+def _parse_row(row: dict, line: int, base: Path, path: Path) -> PairSpec:
+    where = f"line {line}"
+    values = {k: (row.get(k) or "").strip() for k in REQUIRED_COLUMNS + OPTIONAL_COLUMNS}
+    for key in REQUIRED_COLUMNS:
+        if not values[key]:
+            raise InputError(f"{where}: empty {key!r}", path)
+    name = values["name"]
+    if not _NAME_RE.match(name):
+        raise InputError(f"{where}: pair name {name!r} must be letters, digits, '.', '_' or '-' (it names a folder)", path)
+    files = {k: _resolve(base, values[k]) for k in ("source", "target", "skeleton")}
+    fmt = values["gt_format"] or None
+    if fmt is not None and fmt not in GT_FORMATS:
+        raise InputError(f"{where}: unknown gt_format {fmt!r}; use one of {', '.join(GT_FORMATS)}", path)
+    gt: str | tuple[str, str]
+    if fmt == "identity" or (fmt is None and values["gt"].lower() == "identity"):
+        gt = "identity"
+    elif fmt == "template":
+        parts = [s.strip() for s in values["gt"].split(";") if s.strip()]
+        if len(parts) != 2:
+            raise InputError(f"{where}: gt_format template needs two .vts files separated by ';'", path)
+        gt = (_resolve(base, parts[0]), _resolve(base, parts[1]))
+    else:
+        gt = _resolve(base, values["gt"])
+    for key, file in list(files.items()) + [("gt", g) for g in ((gt,) if isinstance(gt, str) else gt) if g != "identity"]:
+        if not os.path.isfile(file):
+            raise InputError(f"{where}: {key} file not found: {file}", path)
+    return PairSpec(name, files["source"], files["target"], files["skeleton"], gt, fmt, values["dataset"] or "default")
+
+
+def read_pairs_csv(path: str | os.PathLike) -> list[PairSpec]:
+    """Read and check a pairs csv: required columns, non-empty values, existing files, unique names.
+
+    Raises:
+        InputError: one line naming the csv (and the line) on the first problem.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("no such file", path)
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as fh:
+            reader = csv.DictReader(fh)
+            header = [h.strip() for h in (reader.fieldnames or [])]
+            reader.fieldnames = header
+            missing = [c for c in REQUIRED_COLUMNS if c not in header]
+            if missing:
+                raise InputError(
+                    f"missing column(s) {', '.join(missing)} (expected {', '.join(REQUIRED_COLUMNS + OPTIONAL_COLUMNS)})",
+                    path,
+                )
+            rows = [(reader.line_num, row) for row in reader if any((v or "").strip() for v in row.values() if isinstance(v, str))]
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise InputError(f"cannot read csv ({str(exc).splitlines()[0]})", path) from None
+    if not rows:
+        raise InputError("no pairs listed", path)
+    pairs = [_parse_row(row, line, path.parent, path) for line, row in rows]
+    seen: set[str] = set()
+    for p in pairs:
+        if p.name in seen:
+            raise InputError(f"duplicate pair name {p.name!r} (names label the run folders)", path)
+        seen.add(p.name)
+    return pairs
+
+
+# ----------------------------------------------------------------------------------------------
+# Methods
+
+
+@dataclasses.dataclass(frozen=True)
+class Method:
+    """A configuration to benchmark: ``id`` names its folder, ``label`` its table row."""
+
+    id: str
+    label: str
+    description: str
+    config: Config
+
+    def to_dict(self) -> dict:
+        return {"id": self.id, "label": self.label, "description": self.description, "config": config_to_dict(self.config)}
+
+
+def ablation_config(config: Config, metric: str, interp: str, constraints: str) -> Config:
+    """``config`` with its data term(s), skeleton interpolation and bone-constraint mode replaced."""
+    cfg = with_metric(config, metric)
+    cfg = dataclasses.replace(cfg, interp=interp)
+    return dataclasses.replace(cfg, constraints=dataclasses.replace(cfg.constraints, mode=constraints))
+
+
+def benchmark_methods(config: Config, ablations: bool = False) -> list[Method]:
+    """The methods of a benchmark: the given configuration, or the Table 1 variants of it."""
+    if not ablations:
+        return [Method("ncflow", "ncflow", "the given configuration", config)]
+    return [Method(i, label, desc, ablation_config(config, m, it, c)) for i, label, desc, m, it, c in ABLATIONS]
+
+
+# ----------------------------------------------------------------------------------------------
+# One run
+
+
+@dataclasses.dataclass(frozen=True)
+class RunTask:
+    """Match (unless done) and evaluate one pair with one method, into ``run_dir``."""
+
+    method: str
+    pair: PairSpec
+    config: Config
+    run_dir: str
+    plots: bool = True
+    geodesic_method: str = "auto"
+
+
+def _evaluation_done(run_dir: Path) -> bool:
+    path = run_dir / EVALUATION_FILE
+    if not path.is_file():
+        return False
+    try:
+        return "headline" in json.loads(path.read_text())
+    except (OSError, ValueError):
+        return False
+
+
+def _match(task: RunTask) -> None:
+    """Run the matcher and write the output contract (atomically) into the run folder."""
+    from ..matcher import Matcher
+
+    p = task.pair
+    result = Matcher(p.source, p.target, p.skeleton, task.config, quiet=True).run()
+    result.save(task.run_dir, overwrite=True)
+
+
+def _evaluate(task: RunTask) -> dict:
+    """Evaluate the run folder against the pair's ground truth; writes evaluation.json (last) and plots."""
+    from .report import evaluate_result, write_evaluation
+
+    p = task.pair
+    ev = evaluate_result(task.run_dir, p.source, p.target, p.gt, p.gt_format, geodesic_method=task.geodesic_method)
+    return write_evaluation(ev, plots=task.plots, extra={"benchmark": {"method": task.method, "pair": p.name, "dataset": p.dataset}})
+
+
+def run_task(task: RunTask) -> dict:
+    """Do what is left of one run; never raises for a failed run (except on interruption).
+
+    Returns:
+        ``{"method", "pair", "status", "seconds", "error"}`` with status ``"skipped"`` (already
+        evaluated), ``"evaluated"`` (result found, evaluation added), ``"matched"`` (matched and
+        evaluated) or ``"failed"`` (``error`` holds one line).
+    """
+    t0 = time.perf_counter()
+    run_dir = Path(task.run_dir)
+    out = {"method": task.method, "pair": task.pair.name, "status": "skipped", "seconds": 0.0, "error": None}
+    if _evaluation_done(run_dir):
+        return out
+    try:
+        if (run_dir / "metrics.json").is_file():
+            out["status"] = "evaluated"
+        else:
+            _match(task)
+            out["status"] = "matched"
+        _evaluate(task)
+    except Exception as exc:  # noqa: BLE001 -- a failed run is recorded, the benchmark goes on
+        text = str(exc).splitlines()[0] if str(exc) else ""
+        out.update(status="failed", error=f"{type(exc).__name__}: {text}".rstrip(": "))
+    out["seconds"] = time.perf_counter() - t0
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# The benchmark
+
+
+@dataclasses.dataclass
+class BenchmarkResult:
+    """``report``: the content of report.json; ``outcomes``: what this invocation did per run."""
+
+    report: dict
+    outcomes: list[dict]
+
+    @property
+    def n_failed(self) -> int:
+        return sum(o["status"] == "failed" for o in self.outcomes)
+
+
+def _check_method_configs(out: Path, methods: list[Method]) -> None:
+    """Refuse to resume runs made with another configuration (before anything runs)."""
+    for m in methods:
+        path = out / "runs" / m.id / "config.json"
+        if not path.is_file():
+            continue
+        try:
+            old = json.loads(path.read_text()).get("config")
+        except (OSError, ValueError, AttributeError):
+            raise InputError("unreadable method configuration; remove it or use another --out", path) from None
+        if old != json.loads(json.dumps(config_to_dict(m.config))):
+            raise InputError(
+                f"the runs of method {m.id!r} were made with another configuration; use another --out "
+                "(or remove that method's folder) to run with this one",
+                path,
+            )
+
+
+def _write_method_configs(out: Path, methods: list[Method]) -> None:
+    for m in methods:
+        d = out / "runs" / m.id
+        d.mkdir(parents=True, exist_ok=True)
+        if not (d / "config.json").is_file():
+            (d / "config.json").write_text(json.dumps(m.to_dict(), indent=1) + "\n")
+
+
+def _execute(tasks: list[RunTask], jobs: int, log: Callable[[str], None], describe: Callable[[dict], str]) -> list[dict]:
+    """Run the tasks in this process (jobs = 1) or in a spawn process pool; log each as it ends."""
+    outcomes: list[dict] = []
+
+    def done(o: dict) -> None:
+        outcomes.append(o)
+        log(f"[{len(outcomes)}/{len(tasks)}] {describe(o)}")
+
+    if jobs <= 1:
+        for t in tasks:
+            done(run_task(t))
+        return outcomes
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = [pool.submit(run_task, t) for t in tasks]
+        try:
+            for f in as_completed(futures):
+                done(f.result())
+        except BaseException:
+            for f in futures:
+                f.cancel()
+            raise
+    return outcomes
+
+
+def _describe(o: dict, rows: dict) -> str:
+    head = f"{o['method']}/{o['pair']}: {o['status']}"
+    if o["status"] == "failed":
+        return f"{head} ({o['error']})"
+    row = rows.get((o["method"], o["pair"]))
+    if row is None:
+        return head
+    return (
+        f"{head} in {o['seconds']:.1f} s; geodesic AUC {row['geodesic_auc']:.3f}, Chamfer AUC {row['chamfer_auc']:.3f}, "
+        f"conformal AUC {row['conformal_auc']:.3f}, bone g/eps {row['max_bone_violation_ratio']:.3g}"
+    )
+
+
+def _collect_rows(tasks: list[RunTask], outcomes: dict) -> list[dict]:
+    rows = []
+    for t in tasks:
+        run_dir = Path(t.run_dir)
+        base = {"method": t.method, "pair": t.pair.name, "dataset": t.pair.dataset,
+                "dir": str(Path("runs") / t.method / t.pair.name)}
+        if _evaluation_done(run_dir):
+            rows.append({**base, "status": "ok", "error": None, **run_row(json.loads((run_dir / EVALUATION_FILE).read_text()))})
+        else:
+            o = outcomes.get((t.method, t.pair.name), {})
+            rows.append({**base, "status": "failed", "error": o.get("error") or "not run"})
+    return rows
+
+
+def run_benchmark(
+    pairs_csv: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    config: Config,
+    *,
+    ablations: bool = False,
+    jobs: int = 1,
+    plots: bool = True,
+    geodesic_method: str = "auto",
+    log: Callable[[str], None] = print,
+) -> BenchmarkResult:
+    """Match and evaluate every pair (per method), resuming finished runs, and write the report.
+
+    Args:
+        pairs_csv: the pairs file (see the module docstring).
+        out_dir: the benchmark folder (created).
+        config: the configuration (the ``ncflow`` method, or the base of the ablation variants).
+        ablations: run the Table 1 variants (:data:`ABLATIONS`) instead of one method.
+        jobs: worker processes (spawn); 1 runs everything in this process.
+        plots: write the per-run plots and the report's curve plots.
+        geodesic_method: see :func:`ncflow.evaluate.geodesic_errors`.
+        log: where progress lines go.
+
+    Returns:
+        :class:`BenchmarkResult`.
+
+    Raises:
+        InputError: bad csv, bad ``jobs``, or runs in ``out_dir`` made with another configuration;
+            raised before anything runs or is written.
+    """
+    if jobs < 1:
+        raise InputError(f"--jobs must be at least 1 (got {jobs})")
+    pairs = read_pairs_csv(pairs_csv)
+    methods = benchmark_methods(config, ablations)
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise InputError("exists and is not a folder", out)
+    _check_method_configs(out, methods)
+    _write_method_configs(out, methods)
+    tasks = [
+        RunTask(m.id, p, m.config, str(out / "runs" / m.id / p.name), plots, geodesic_method)
+        for p in pairs for m in methods
+    ]
+    rows_so_far: dict = {}
+
+    def describe(o: dict) -> str:
+        run_dir = out / "runs" / o["method"] / o["pair"]
+        if o["status"] != "failed" and _evaluation_done(run_dir):
+            rows_so_far[(o["method"], o["pair"])] = run_row(json.loads((run_dir / EVALUATION_FILE).read_text()))
+        return _describe(o, rows_so_far)
+
+    outcomes = _execute(tasks, jobs, log, describe)
+    rows = _collect_rows(tasks, {(o["method"], o["pair"]): o for o in outcomes})
+    report = write_benchmark_report(
+        out, rows, [m.to_dict() for m in methods], pairs_csv=str(pairs_csv), n_pairs=len(pairs), plots=plots
+    )
+    return BenchmarkResult(report, outcomes)
