@@ -1,2 +1,48 @@
-"""ncflow: correspondence-free matching and interpolation of articulated 3D shapes."""
+"""ncflow: correspondence-free matching and interpolation of articulated 3D shapes.
+
+A small public surface; everything else lives in the submodules (``ncflow.measures``,
+``ncflow.skeleton``, ``ncflow.flow``, ``ncflow.evaluate``, ...).
+"""
+
 __version__ = "0.1.0"
+
+from .config import Config, load_config, preset
+from .errors import InputError, NcflowError
+from .matcher import Matcher, MatchResult, TrainingError, match
+from .measures import (
+    compress_normal_cycle,
+    compress_varifold,
+    normal_cycle,
+    normal_cycle_distance,
+    varifold,
+    varifold_distance,
+)
+from .mesh import Mesh, fit_normalization, load_mesh, mesh_topology, save_mesh
+from .skeleton import Skeleton, load_skeleton, save_skeleton
+
+__all__ = [
+    "Config",
+    "InputError",
+    "Matcher",
+    "MatchResult",
+    "Mesh",
+    "NcflowError",
+    "Skeleton",
+    "TrainingError",
+    "__version__",
+    "compress_normal_cycle",
+    "compress_varifold",
+    "fit_normalization",
+    "load_config",
+    "load_mesh",
+    "load_skeleton",
+    "match",
+    "mesh_topology",
+    "normal_cycle",
+    "normal_cycle_distance",
+    "preset",
+    "save_mesh",
+    "save_skeleton",
+    "varifold",
+    "varifold_distance",
+]

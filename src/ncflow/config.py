@@ -100,10 +100,12 @@ class PhaseConfig:
 class ConstraintConfig:
     """Bone constraints g_k ≤ ε (paper §4.5, DESIGN.md "Constraints (MDMM)").
 
-    ``eps`` is the tolerance on the mean squared distance (normalised units) between a bone's
-    flowed samples and their rigid reference. ``mode`` "mdmm": Lagrangian with multipliers λ ≥ 0
-    (ascent with rate ``multiplier_lr`` on the scaled violation Γ/ε) and damping ``damping``;
-    "soft": a fixed penalty ``soft_weight`` · mean_k g_k/ε (the ARC-Flow baseline).
+    ``eps`` is the tolerance on the mean squared distance (normalised units: the source encloses
+    the volume of the unit ball) between a bone's flowed samples and their rigid reference.
+    ``mode`` "mdmm": Lagrangian w·mean_k(λ_k Γ_k + (δ/2)Γ_k²), Γ_k = max(g_k − ε, 0), with
+    multipliers λ ≥ 0 updated every step by λ ← max(0, λ ± η_t) (up while violated, down once
+    satisfied; η_t ramps from 0 to 2·``multiplier_lr`` over the run) and damping δ = ``damping``; "soft": a fixed penalty ``soft_weight`` · mean_k g_k/ε
+    (the ARC-Flow baseline). ``trajectory_weight`` scales the interior-time constraints.
     """
 
     mode: str = "mdmm"
@@ -146,7 +148,6 @@ class Config:
     weights: WeightsConfig = field(default_factory=WeightsConfig)
     tissue: TissueConfig = field(default_factory=TissueConfig)
     optimizer: str = "adabelief"
-    pose_lr_scale: float = 10.0
     clip_norm: float = 0.5
     weight_decay: float = 1e-4
     interp: str = "sclerp"
@@ -181,7 +182,6 @@ def _paper() -> Config:
         constraints=ConstraintConfig(eps=3e-4),
         weights=WeightsConfig(surface=20.0, tissue=10.0),
         tissue=TissueConfig(edge_length_fac=0.05, epsilon=1e-3, split_passes=2),
-        pose_lr_scale=1.0,
         compress=6000,
         frames=100,
     )
@@ -354,7 +354,6 @@ def validate_config(config: Config) -> Config:
         (config.interp in ("sclerp", "slerp"), "interp must be 'sclerp' or 'slerp'"),
         (config.compress is None or config.compress >= 10, "compress must be at least 10 (or none)"),
         (config.frames >= 2, "frames must be at least 2"),
-        (config.pose_lr_scale >= 0, "pose_lr_scale must be non-negative"),
         (len(config.phases) >= 1, "at least one phase is needed"),
     ]
     for ok, message in checks:

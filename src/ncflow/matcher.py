@@ -16,12 +16,15 @@ tissue sample). The objective is
 with the data term relative to the target's self-energy (so one set of weights works across
 meshes, scales and σ), L_surf the ARAP term against the GSO-Net on ``sampling.surface_edges``
 random edges, L_soft the tissue stencil term, and C the bone-constraint term: with MDMM,
-C = w · mean_k(λ_k Γ_k + (δ/2) Γ_k²) with Γ_k = max(g_k − ε, 0)/ε for the endpoint and
-(in phases with ``trajectory``) the trajectory constraints, and λ ← max(0, λ + η_t sign(g − ε))
-after every step, with η_t ramping linearly from 0 to 2η over the run: normalised gradient ascent on λ projected on λ ≥ 0 (the release moves its
-multipliers with its sign-like Adam steps, which is the same normalisation); λ grows while a bone
-is violated and relaxes once it is satisfied. The soft mode uses C = w_soft · mean_k g_k/ε.
-Scaling Γ by 1/ε is the paper's MDMM with λ and δ measured in units of ε.
+C = w · mean_k(λ_k Γ_k + (δ/2) Γ_k²) with Γ_k = max(g_k − ε, 0) for the endpoint and (in
+phases with ``trajectory``) the trajectory constraints. The skeleton pose is eliminated: at every
+step it is set to the least-squares articulated fit of the flowed bone samples (:func:`fit_pose`,
+warm-started Gauss–Newton), the minimiser of the constraint term over the pose, so g_k measures
+only the flow's departure from an articulated rigid motion. Multipliers follow a normalised
+(sign) ascent projected on λ ≥ 0, λ ← max(0, λ + η_t sign(g_k − ε)), with η_t ramping linearly
+from 0 to 2η over the run: the shape is matched first while λ is small, then the bones are
+tightened (the release moves its multipliers with its sign-like Adam steps, the same
+normalisation). The soft mode (ARC-Flow baseline) uses C = w_soft · mean_k g_k/ε with fixed weights.
 """
 
 from __future__ import annotations
@@ -47,8 +50,6 @@ from .errors import InputError, NcflowError
 from .flow import GSONet, flow_points, integrate, make_flow_field, time_grid
 from .losses import arap_energy, bone_constraints, sample_edges, tissue_distortion, tissue_stencil
 from .measures import (
-    NormalCycle,
-    Varifold,
     compress_normal_cycle,
     compress_varifold,
     normal_cycle,
@@ -291,13 +292,13 @@ class Params(eqx.Module):
 
 
 def fit_pose(
-    skeleton: Skeleton, pose: Pose, rest_points, flowed, times, interp: str, iterations: int = 2, max_step: float = 0.1
+    skeleton: Skeleton, pose: Pose, rest_points, flowed, times, interp: str, iterations: int = 2, max_step: float = 0.02
 ) -> Pose:
     """Least-squares articulated fit of flowed bone samples: Gauss–Newton on the pose parameters.
 
     Minimises Σ_t Σ_k Σ_s ‖p̄_k,s(t; pose) − x_k,s(t)‖² over the joint rotations and the root
-    translation, warm-started from ``pose`` (Levenberg damping 1e-6·tr(JᵀJ)/P handles the gauge
-    directions: quaternion scale, rotations of leaf joints); each step is capped at ``max_step`` per
+    translation, warm-started from ``pose`` (Levenberg damping ∝ tr(JᵀJ)/P handles the gauge
+    directions: quaternion scale, rotations of leaf joints; 1e-3 in the code); each step is capped at ``max_step`` per
     parameter (a trust region, so a poor flow early on cannot fling the skeleton). ``flowed``
     (T, B, n, 3) is treated as data.
     """
@@ -311,7 +312,7 @@ def fit_pose(
         r = residual(flat)
         jac = jax.jacfwd(residual)(flat)
         a = jac.T @ jac
-        mu = 1e-6 * jnp.trace(a) / a.shape[0] + 1e-12
+        mu = 1e-3 * jnp.trace(a) / a.shape[0] + 1e-12
         delta = jnp.linalg.solve(a + mu * jnp.eye(a.shape[0], dtype=a.dtype), jac.T @ r)
         delta = delta * jnp.minimum(1.0, max_step / (jnp.max(jnp.abs(delta)) + 1e-12))  # trust region
         flat = flat - delta
@@ -487,6 +488,7 @@ class Matcher:
         """Optimise, then build the result (user coordinates)."""
         cfg = self.config
         t_train = time.perf_counter()
+        self.progress.start = t_train
         key = jax.random.key(cfg.seed)
         k_init, k_train, k_eval = jax.random.split(key, 3)
         params = self._init_params(k_init)
