@@ -26,3 +26,23 @@ class InputError(NcflowError, ValueError):
         self.path = None if path is None else os.fspath(path)
         message = " ".join(str(message).split())
         super().__init__(f"{self.path}: {message}" if self.path else message)
+
+
+def check_input_file(path: str | os.PathLike, what: str, suffixes: tuple[str, ...]) -> str:
+    """Raise :class:`InputError` unless ``path`` is an existing file with one of ``suffixes``.
+
+    Returns the lower-case suffix.
+    """
+    from pathlib import Path
+
+    p = Path(path)
+    if not p.exists():
+        raise InputError("no such file", p)
+    if p.is_dir():
+        raise InputError(f"is a directory, expected a {what} file", p)
+    suffix = p.suffix.lower()
+    if suffix not in suffixes:
+        raise InputError(
+            f"unsupported {what} format {suffix or '(no suffix)'!r}; use one of {', '.join(suffixes)}", p
+        )
+    return suffix

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 from jaxtyping import Float, Int
 
-from .errors import InputError
+from .errors import InputError, check_input_file
 
 __all__ = [
     "Mesh",
@@ -136,16 +136,7 @@ def load_mesh(path: str | os.PathLike, *, weld: bool | None = None, validate: bo
     import trimesh
 
     path = Path(path)
-    if not path.exists():
-        raise InputError("no such file", path)
-    if path.is_dir():
-        raise InputError("is a directory, expected a mesh file", path)
-    suffix = path.suffix.lower()
-    if suffix not in MESH_SUFFIXES:
-        raise InputError(
-            f"unsupported mesh format {suffix or '(no suffix)'!r}; use one of {', '.join(MESH_SUFFIXES)}",
-            path,
-        )
+    suffix = check_input_file(path, "mesh", MESH_SUFFIXES)
     sizes = _declared_polygon_sizes(path)
     if sizes is not None and sizes.size and np.any(sizes != 3):
         bad = int(np.sum(sizes != 3))

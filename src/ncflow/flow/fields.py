@@ -44,54 +44,41 @@ def _inputs(x: Float[Array, "N 3"], t: Float[Array, ""] | float, reverse_time: b
     return jnp.concatenate([x, jnp.broadcast_to(tt, x.shape[:-1] + (1,))], axis=-1)
 
 
-class FlowField(eqx.Module):
+class _MLPField(eqx.Module):
+    """Parameters shared by the fields: an MLP on [x, t], a trainable scale α, the time convention."""
+
+    mlp: eqx.nn.MLP
+    alpha: Float[Array, ""]
+    reverse_time: bool = eqx.field(static=True, default=False)
+
+    def __init__(
+        self,
+        key: PRNGKeyArray,
+        width: int = DEFAULT_WIDTH,
+        depth: int = DEFAULT_DEPTH,
+        dtype=jnp.float32,
+        alpha: float = ALPHA_INIT,
+        reverse_time: bool = False,
+    ):
+        self.mlp = _mlp(key, width, depth, dtype)
+        self.alpha = jnp.asarray(alpha, dtype=dtype)
+        self.reverse_time = reverse_time
+
+
+class FlowField(_MLPField):
     """F_θ(x, t) = α · MLP([x, t]) (DESIGN.md "Flow"; reference-notes §8.1).
 
     ``reverse_time=True`` feeds [x, 1 − t] instead, as the authors' release does (a reparametrisation
     of the input only; off by default).
     """
 
-    mlp: eqx.nn.MLP
-    alpha: Float[Array, ""]
-    reverse_time: bool = eqx.field(static=True, default=False)
-
-    def __init__(
-        self,
-        key: PRNGKeyArray,
-        width: int = DEFAULT_WIDTH,
-        depth: int = DEFAULT_DEPTH,
-        dtype=jnp.float32,
-        alpha: float = ALPHA_INIT,
-        reverse_time: bool = False,
-    ):
-        self.mlp = _mlp(key, width, depth, dtype)
-        self.alpha = jnp.asarray(alpha, dtype=dtype)
-        self.reverse_time = reverse_time
-
     def __call__(self, x: Float[Array, "N 3"], t: Float[Array, ""] | float) -> Float[Array, "N 3"]:
         """Velocities at points x (N, 3) and time t (scalar)."""
         return self.alpha * jax.vmap(self.mlp)(_inputs(x, t, self.reverse_time))
 
 
-class DivFreeFlowField(eqx.Module):
+class DivFreeFlowField(_MLPField):
     """F_θ(x, t) = α · ∇×A_θ(x, t), A_θ an MLP [x, t] → R³; ∇·F = 0 (paper §4.1)."""
-
-    mlp: eqx.nn.MLP
-    alpha: Float[Array, ""]
-    reverse_time: bool = eqx.field(static=True, default=False)
-
-    def __init__(
-        self,
-        key: PRNGKeyArray,
-        width: int = DEFAULT_WIDTH,
-        depth: int = DEFAULT_DEPTH,
-        dtype=jnp.float32,
-        alpha: float = ALPHA_INIT,
-        reverse_time: bool = False,
-    ):
-        self.mlp = _mlp(key, width, depth, dtype)
-        self.alpha = jnp.asarray(alpha, dtype=dtype)
-        self.reverse_time = reverse_time
 
     def potential(self, x: Float[Array, "N 3"], t: Float[Array, ""] | float) -> Float[Array, "N 3"]:
         """The vector potential A_θ(x, t), (N, 3)."""

@@ -20,6 +20,8 @@ The paper's π²/4 factor (Eq. 14) is omitted, as in the authors' release: it sc
 
 from __future__ import annotations
 
+import math
+
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
@@ -86,7 +88,7 @@ def normal_cycle(vertices: Float[Array, "V 3"], topology: Topology) -> NormalCyc
 
 
 def _nc_features(x: NormalCycle, sigma: float) -> tuple[Float[Array, "N 3"], Float[Array, "N 12"]]:
-    return x.centers / (np.sqrt(2.0) * sigma), x.weights
+    return x.centers / (math.sqrt(2.0) * sigma), x.weights
 
 
 def normal_cycle_inner(

@@ -15,6 +15,8 @@ features [c/(√2σ), n/(2σ_n)] with weights a·e^{‖n‖²/(4σ_n²)}.
 
 from __future__ import annotations
 
+import math
+
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
@@ -56,9 +58,9 @@ def varifold_features(
     x: Varifold, sigma: float, sigma_normal: float
 ) -> tuple[Float[Array, "N 6"], Float[Array, "N 1"]]:
     """Scaled 6-D features and weights for which the varifold kernel is exp(−‖z − z'‖²)."""
-    z = jnp.concatenate([x.centers / (np.sqrt(2.0) * sigma), x.normals / (2.0 * sigma_normal)], axis=1)
+    z = jnp.concatenate([x.centers / (math.sqrt(2.0) * sigma), x.normals / (2.0 * sigma_normal)], axis=1)
     sq = jnp.sum(x.normals * x.normals, axis=1)
-    w = x.weights * jnp.exp(sq / (4.0 * sigma_normal**2))
+    w = x.weights * jnp.exp(sq / (4.0 * sigma_normal ** 2))
     return z, w[:, None]
 
 

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 from jaxtyping import Float, Int
 
-from ..errors import InputError
+from ..errors import InputError, check_input_file
 
 __all__ = [
     "Skeleton",
@@ -512,16 +512,7 @@ def load_skeleton(
         InputError: one line naming the file and the problem.
     """
     path = Path(path)
-    if not path.exists():
-        raise InputError("no such file", path)
-    if path.is_dir():
-        raise InputError("is a directory, expected a skeleton file", path)
-    suffix = path.suffix.lower()
-    if suffix not in SKELETON_SUFFIXES:
-        raise InputError(
-            f"unsupported skeleton format {suffix or '(no suffix)'!r}; use one of {', '.join(SKELETON_SUFFIXES)}",
-            path,
-        )
+    suffix = check_input_file(path, "skeleton", SKELETON_SUFFIXES)
     if suffix in (".glb", ".gltf"):
         try:
             from ..gltf import gltf_skeleton
