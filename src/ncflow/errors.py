@@ -1,4 +1,4 @@
-"""Exceptions raised for bad user input.
+"""Exceptions raised for bad user input, and the small readers that turn unreadable files into them.
 
 Every error that a user can cause by handing ncflow a bad file or a bad setting is an
 :class:`InputError` whose message is one line naming the file (when there is one) and the
@@ -46,3 +46,47 @@ def check_input_file(path: str | os.PathLike, what: str, suffixes: tuple[str, ..
             f"unsupported {what} format {suffix or '(no suffix)'!r}; use one of {', '.join(suffixes)}", p
         )
     return suffix
+
+
+def first_line(exc: BaseException) -> str:
+    """The first line of an exception's message (its type name when it has none)."""
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
+def read_json_object(path: str | os.PathLike, expected: str = "a JSON object") -> dict:
+    """Parse a JSON file whose top level must be an object; one-line :class:`InputError` otherwise."""
+    import json
+    from pathlib import Path
+
+    p = Path(path)
+    try:
+        data = json.loads(p.read_text())
+    except OSError as exc:
+        raise InputError(f"cannot read file ({exc.strerror or exc})", p) from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"not valid JSON ({exc})", p) from None
+    if not isinstance(data, dict):
+        raise InputError(f"expected {expected}", p)
+    return data
+
+
+def read_npz_arrays(path: str | os.PathLike, required: tuple[str, ...] = ()) -> dict:
+    """All arrays of a ``.npz`` archive (no pickles), checking that ``required`` ones are present."""
+    import zipfile
+    from pathlib import Path
+
+    import numpy as np
+
+    p = Path(path)
+    if not zipfile.is_zipfile(p):
+        raise InputError("cannot read .npz archive (not a zip file)", p)
+    try:
+        with np.load(p, allow_pickle=False) as z:
+            arrays = {k: np.asarray(z[k]) for k in z.files}
+    except Exception as exc:
+        raise InputError(f"cannot read .npz archive ({first_line(exc)})", p) from None
+    for key in required:
+        if key not in arrays:
+            raise InputError(f"missing array {key!r} (found: {', '.join(sorted(arrays)) or 'none'})", p)
+    return arrays

@@ -57,7 +57,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from jaxtyping import Float, Int
 
-from .errors import InputError, NcflowError
+from .errors import InputError, NcflowError, first_line, read_json_object, read_npz_arrays
 
 if TYPE_CHECKING:
     from .skeleton import Skeleton
@@ -688,22 +688,10 @@ def _move_into_place(tmp: Path, out_dir: Path, overwrite: bool) -> None:
 # Reading back
 
 
-def _first_line(exc: BaseException) -> str:
-    return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-
-
 def _read_json(path: Path) -> dict:
     if not path.is_file():
         raise InputError("missing result file", path)
-    try:
-        data = json.loads(path.read_text())
-    except OSError as exc:
-        raise InputError(f"cannot read file ({exc.strerror or exc})", path) from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"not valid JSON ({exc})", path) from None
-    if not isinstance(data, dict):
-        raise InputError("expected a JSON object", path)
-    return data
+    return read_json_object(path)
 
 
 def _read_ply(path: Path):
@@ -745,14 +733,7 @@ def read_result(out_dir: str | os.PathLike, *, check_animation: bool = True) -> 
     npz_path = out_dir / "map_tgt_to_src.npz"
     if not npz_path.is_file():
         raise InputError("missing result file", npz_path)
-    try:
-        with np.load(npz_path, allow_pickle=False) as npz:
-            arrays = {key: np.asarray(npz[key]) for key in npz.files}
-    except Exception as exc:
-        raise InputError(f"cannot read .npz ({_first_line(exc)})", npz_path) from None
-    for key in ("face", "bary"):
-        if key not in arrays:
-            raise InputError(f"missing array {key!r}", npz_path)
+    arrays = read_npz_arrays(npz_path, ("face", "bary"))
     face, bary = arrays["face"], arrays["bary"]
     if face.ndim != 1 or not np.issubdtype(face.dtype, np.integer):
         raise InputError(f"'face' must be a 1-D integer array, got shape {face.shape} dtype {face.dtype}", npz_path)
@@ -848,7 +829,7 @@ def _check_glb(path: Path, k: int, nv: int) -> None:
     try:
         gltf = pygltflib.GLTF2().load_binary(str(path))
     except Exception as exc:
-        raise InputError(f"cannot read glTF binary ({_first_line(exc)})", path) from None
+        raise InputError(f"cannot read glTF binary ({first_line(exc)})", path) from None
     if gltf is None or not gltf.meshes or not gltf.meshes[0].primitives:
         raise InputError("no mesh in the glTF file", path)
     prim = gltf.meshes[0].primitives[0]

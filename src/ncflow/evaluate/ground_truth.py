@@ -29,13 +29,12 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import zipfile
 from pathlib import Path
 
 import numpy as np
 from jaxtyping import Float, Int
 
-from ..errors import InputError
+from ..errors import InputError, first_line, read_npz_arrays
 from ..mesh import Mesh
 from .geodesics import vertex_surface_points
 
@@ -134,7 +133,7 @@ def _read_indices(path: Path) -> tuple[np.ndarray, list[str]]:
         try:
             arr = np.load(path, allow_pickle=False)
         except Exception as exc:
-            raise InputError(f"cannot read .npy array ({_first_line(exc)})", path) from None
+            raise InputError(f"cannot read .npy array ({first_line(exc)})", path) from None
         arr = np.asarray(arr)
         if arr.ndim == 2 and 1 in arr.shape:
             arr = arr.reshape(-1)
@@ -151,7 +150,7 @@ def _read_indices(path: Path) -> tuple[np.ndarray, list[str]]:
     try:
         text = path.read_text(errors="strict")
     except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"cannot read text ({_first_line(exc)})", path) from None
+        raise InputError(f"cannot read text ({first_line(exc)})", path) from None
     values, where = [], []
     for lineno, line in enumerate(text.splitlines(), start=1):
         s = line.strip()
@@ -168,11 +167,6 @@ def _read_indices(path: Path) -> tuple[np.ndarray, list[str]]:
     if not values:
         raise InputError("no vertex indices in file (empty?)", path)
     return _parse_integers(path, np.asarray(values), where), where
-
-
-def _first_line(exc: Exception) -> str:
-    s = str(exc).strip()
-    return s.splitlines()[0] if s else type(exc).__name__
 
 
 def _check_range(idx: np.ndarray, where: list[str], path, one_based: bool, mesh: str, n: int) -> None:
@@ -206,16 +200,7 @@ def _load_npz(path: Path, source: Mesh, target: Mesh, bary_tol: float) -> Ground
         raise InputError("no such file", path)
     if path.is_dir():
         raise InputError("is a directory, expected a ground-truth file", path)
-    if not zipfile.is_zipfile(path):
-        raise InputError("cannot read .npz archive (not a zip file)", path)
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            arrays = {k: np.asarray(z[k]) for k in z.files}
-    except Exception as exc:
-        raise InputError(f"cannot read .npz archive ({_first_line(exc)})", path) from None
-    for key in ("face", "bary"):
-        if key not in arrays:
-            raise InputError(f"missing array {key!r} (found: {', '.join(sorted(arrays)) or 'none'})", path)
+    arrays = read_npz_arrays(path, ("face", "bary"))
     face, bary = arrays["face"], arrays["bary"]
     if face.ndim != 1:
         raise InputError(f"array 'face' must be 1-D, got shape {face.shape}", path)

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 from jaxtyping import Float, Int
 
-from ..errors import InputError, check_input_file
+from ..errors import InputError, check_input_file, read_json_object
 
 __all__ = [
     "Skeleton",
@@ -433,14 +433,7 @@ def _write_text(path, text: str) -> None:
 def read_skeleton_json(path: str | os.PathLike) -> Skeleton:
     """Read ``{"names", "parents", "positions", "radii"}`` (names and radii optional)."""
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except OSError as exc:
-        raise InputError(f"cannot read file ({exc.strerror or exc})", path) from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"not valid JSON ({exc})", path) from None
-    if not isinstance(data, dict):
-        raise InputError("expected a JSON object with 'positions' and 'parents'", path)
+    data = read_json_object(path, "a JSON object with 'positions' and 'parents'")
     for key in ("positions", "parents"):
         if key not in data:
             raise InputError(f"missing key {key!r}", path)
