@@ -562,8 +562,7 @@ class Matcher:
         src = jnp.asarray(self.src_v, DTYPE)
         frames_n = np.asarray(flow_points(params.flow, src, cfg.flow.n_times, times=jnp.asarray(frame_times, DTYPE)), np.float64)
         frames_n[0] = self.src_v  # t = 0 is the source exactly
-        deformed_n = np.asarray(flow_points(params.flow, src, cfg.flow.n_times)[-1], np.float64)
-        frames_n[-1] = deformed_n
+        deformed_n = frames_n[-1]  # Hermite output at a grid time is the grid state: the state at t = 1
         if not (np.all(np.isfinite(frames_n)) and np.all(np.isfinite(deformed_n))):
             raise TrainingError("the trained flow produced non-finite positions")
         joints = np.stack([

@@ -129,6 +129,22 @@ def scale_by_vector_adam(
     return optax.GradientTransformation(init_fn, update_fn)
 
 
+def _clipped_decayed(
+    core: optax.GradientTransformation,
+    learning_rate: float | optax.Schedule,
+    weight_decay: float,
+    clip_norm: float | None,
+    weight_decay_mask: Any,
+) -> optax.GradientTransformation:
+    """global-norm clip → ``core`` → decoupled weight decay → −η_t (the chain both optimisers share)."""
+    return optax.chain(
+        optax.clip_by_global_norm(clip_norm) if clip_norm is not None else optax.identity(),
+        core,
+        optax.add_decayed_weights(weight_decay, mask=weight_decay_mask),
+        optax.scale_by_learning_rate(learning_rate),
+    )
+
+
 def adabelief_cautious(
     learning_rate: float | optax.Schedule,
     b1: float = 0.9,
@@ -142,12 +158,8 @@ def adabelief_cautious(
     (s uses the updated m; eps added to s and to √ŝ) → cautious mask per array → decoupled weight
     decay → −η_t. ``clip_norm=None`` disables clipping; ``weight_decay_mask`` (a pytree of bools or
     a callable, as :func:`optax.add_decayed_weights`) restricts the decay (default: all leaves)."""
-    return optax.chain(
-        optax.clip_by_global_norm(clip_norm) if clip_norm is not None else optax.identity(),
-        cautious(optax.scale_by_belief(b1=b1, b2=b2, eps=eps, eps_root=eps)),
-        optax.add_decayed_weights(weight_decay, mask=weight_decay_mask),
-        optax.scale_by_learning_rate(learning_rate),
-    )
+    core = cautious(optax.scale_by_belief(b1=b1, b2=b2, eps=eps, eps_root=eps))
+    return _clipped_decayed(core, learning_rate, weight_decay, clip_norm, weight_decay_mask)
 
 
 def vectoradam_cautious(
@@ -163,9 +175,5 @@ def vectoradam_cautious(
     """The paper's optimiser (§4.6): global-norm clip → VectorAdam (rows of 3 share one second
     moment, see the module docstring) → cautious mask (per row of 3 for vector arrays, per
     component otherwise) → decoupled weight decay → −η_t. ``eps`` defaults to Adam's 10⁻⁸."""
-    return optax.chain(
-        optax.clip_by_global_norm(clip_norm) if clip_norm is not None else optax.identity(),
-        cautious(scale_by_vector_adam(b1=b1, b2=b2, eps=eps, is_vector=is_vector), is_vector=is_vector),
-        optax.add_decayed_weights(weight_decay, mask=weight_decay_mask),
-        optax.scale_by_learning_rate(learning_rate),
-    )
+    core = cautious(scale_by_vector_adam(b1=b1, b2=b2, eps=eps, is_vector=is_vector), is_vector=is_vector)
+    return _clipped_decayed(core, learning_rate, weight_decay, clip_norm, weight_decay_mask)
