@@ -202,3 +202,21 @@ def test_config_file_errors(tmp_path):
         load_config(bad)
     with pytest.raises(InputError, match="unknown preset"):
         load_config(None, "turbo")
+
+
+def test_phase_constraint_weight(tmp_path, pair):
+    from ncflow.config import load_config
+
+    bad = tmp_path / "c.toml"
+    bad.write_text('[[phases]]\nmetric = "varifold"\nsteps = 5\nconstraint_weight = -1\n')
+    with pytest.raises(InputError, match="constraint_weight"):
+        load_config(bad)
+    # a phase with weight 0 has no constraint term and leaves the multipliers at zero
+    src, tgt, skel, *_ = pair
+    cfg = small_config(steps=(4, 4))
+    cfg = dataclasses.replace(cfg, phases=tuple(dataclasses.replace(p, constraint_weight=0.0) for p in cfg.phases))
+    r = match(src, tgt, skel, cfg, quiet=True)
+    assert all(h["constraint"] == 0.0 for h in r.metrics["phases"])
+    bones = r.metrics["constraints"]["bones"]
+    assert all(b["multiplier_endpoint"] == 0.0 and b["multiplier_trajectory"] == 0.0 for b in bones)
+    assert r.metrics["config"]["phases"][0]["constraint_weight"] == 0.0

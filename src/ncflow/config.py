@@ -82,7 +82,10 @@ class PhaseConfig:
 
     ``sigmas`` are used in equal consecutive parts of the phase (coarse to fine). The learning rate
     warms up linearly from 0 to ``lr`` over ``warmup`` steps, then follows a cosine to ``lr_end``
-    (constant if ``lr_end`` is None). ``trajectory`` adds the interior-time bone constraints.
+    (constant if ``lr_end`` is None). ``trajectory`` adds the interior-time bone constraints;
+    ``constraint_weight`` multiplies the constraint term in this phase (the release's fine-tuning
+    phase uses 20× its main endpoint weight; with our multiplier schedule a 20× phase destabilised
+    the fast preset on MANO, so no preset uses it).
     """
 
     metric: str = "normal-cycles"
@@ -93,6 +96,7 @@ class PhaseConfig:
     lr_end: float | None = None
     warmup: int = 10
     trajectory: bool = True
+    constraint_weight: float = 1.0
     name: str = ""
 
 
@@ -366,6 +370,8 @@ def validate_config(config: Config) -> Config:
             raise InputError(f"phases[{i}]: steps must be ≥ 0 and sigmas positive")
         if p.lr < 0 or (p.lr_end is not None and p.lr_end < 0) or p.warmup < 0:
             raise InputError(f"phases[{i}]: learning rates and warm-up must be non-negative")
+        if p.constraint_weight < 0:
+            raise InputError(f"phases[{i}].constraint_weight must be non-negative")
     if config.total_steps < 1:
         raise InputError("the phases have no steps")
     return config

@@ -415,7 +415,7 @@ class Matcher:
         w = cfg.weights
         interp = cfg.interp
 
-        def losses(params: Params, pose, target, sigma, sigma_n, yy, traj_w, lam, key):
+        def losses(params: Params, pose, target, sigma, sigma_n, yy, cw, lam, key):
             kb, kt, ke = jax.random.split(key, 3)
             bones = sample_bones(skel, kb, n_bone, radius=radii, dtype=DTYPE).points  # (B, n, 3)
             nb = bones.shape[0] * bones.shape[1]
@@ -450,25 +450,25 @@ class Matcher:
             gam_tr = jnp.maximum(g_tr - eps, 0.0)
             if c.mode == "mdmm":
                 term = lambda lam_, gam: jnp.mean(lam_ * gam + 0.5 * c.damping * gam**2)  # noqa: E731
-                cons = c.weight * (term(lam[0], gam_ep) + traj_w * c.trajectory_weight * term(lam[1], gam_tr))
+                cons = c.weight * (cw[0] * term(lam[0], gam_ep) + cw[1] * c.trajectory_weight * term(lam[1], gam_tr))
             else:
-                cons = c.soft_weight * (jnp.mean(g_ep / eps) + traj_w * c.trajectory_weight * jnp.mean(g_tr / eps))
+                cons = c.soft_weight * (cw[0] * jnp.mean(g_ep / eps) + cw[1] * c.trajectory_weight * jnp.mean(g_tr / eps))
             total = data + w.surface * surf_loss + w.tissue * soft + cons
             aux = {"loss": total, "data": data, "surface": surf_loss, "tissue": soft, "constraint": cons,
-                   "g_ep": g_ep, "g_tr": g_tr, "gam": jnp.stack([gam_ep, gam_tr * traj_w]), "pose": pose}
+                   "g_ep": g_ep, "g_tr": g_tr, "gam": jnp.stack([gam_ep, gam_tr * (cw[1] > 0)]), "pose": pose}
             return total, aux
 
         @eqx.filter_jit
-        def step(params, pose, opt_state, lam, target, sigma, sigma_n, yy, traj_w, lr, progress, key):
+        def step(params, pose, opt_state, lam, target, sigma, sigma_n, yy, cw, lr, progress, key):
             (_, aux), grads = eqx.filter_value_and_grad(losses, has_aux=True)(
-                params, pose, target, sigma, sigma_n, yy, traj_w, lam, key
+                params, pose, target, sigma, sigma_n, yy, cw, lam, key
             )
             updates, opt_state = optimizer.update(grads, opt_state, eqx.filter(params, eqx.is_inexact_array))
             updates = jax.tree_util.tree_map(lambda u: lr * u, updates)
             params = eqx.apply_updates(params, updates)
             if c.mode == "mdmm":
                 g = jnp.stack([aux["g_ep"], aux["g_tr"]])
-                active = jnp.stack([jnp.ones_like(traj_w), traj_w])[:, None]
+                active = (cw > 0).astype(lam.dtype)[:, None]
                 rate = c.multiplier_lr * 2.0 * progress  # ramps 0 -> 2η: free early, tight late
                 lam = jnp.maximum(lam + rate * active * jnp.sign(g - eps), 0.0)
             return params, aux.pop("pose"), opt_state, lam, aux
@@ -506,13 +506,14 @@ class Matcher:
             step = steps_fn[st.metric]
             target, yy, _ = self.targets[(st.metric, st.sigma, st.phase_config.sigma_normal)]
             schedule = _phase_schedule(st.phase_config)
-            traj_w = jnp.asarray(1.0 if st.phase_config.trajectory else 0.0, DTYPE)
+            pw = st.phase_config.constraint_weight
+            cw = jnp.asarray([pw, pw if st.phase_config.trajectory else 0.0], DTYPE)
             phase_name = st.phase_config.name or st.metric
             for s in range(st.steps):
                 lr = jnp.asarray(schedule(st.start + s), DTYPE)
                 params, pose, opt_state, lam, aux = step(
                     params, pose, opt_state, lam, target, jnp.asarray(st.sigma, DTYPE),
-                    jnp.asarray(st.phase_config.sigma_normal, DTYPE), jnp.asarray(yy, DTYPE), traj_w, lr,
+                    jnp.asarray(st.phase_config.sigma_normal, DTYPE), jnp.asarray(yy, DTYPE), cw, lr,
                     jnp.asarray(done / cfg.total_steps, DTYPE), jax.random.fold_in(k_train, done),
                 )
                 done += 1
