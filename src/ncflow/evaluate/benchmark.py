@@ -254,6 +254,12 @@ def run_task(task: RunTask) -> dict:
     except Exception as exc:  # noqa: BLE001 -- a failed run is recorded, the benchmark goes on
         text = str(exc).splitlines()[0] if str(exc) else ""
         out.update(status="failed", error=f"{type(exc).__name__}: {text}".rstrip(": "))
+    finally:
+        # every pair compiles its own executables (other shapes); kept for the whole process they
+        # exhausted the address-space mappings after ~14 pairs (LLVM "Unable to allocate section memory")
+        import jax
+
+        jax.clear_caches()
     out["seconds"] = time.perf_counter() - t0
     return out
 
