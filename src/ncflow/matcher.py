@@ -455,7 +455,7 @@ class Matcher:
                 cons = c.soft_weight * (cw[0] * jnp.mean(g_ep / eps) + cw[1] * c.trajectory_weight * jnp.mean(g_tr / eps))
             total = data + w.surface * surf_loss + w.tissue * soft + cons
             aux = {"loss": total, "data": data, "surface": surf_loss, "tissue": soft, "constraint": cons,
-                   "g_ep": g_ep, "g_tr": g_tr, "gam": jnp.stack([gam_ep, gam_tr * (cw[1] > 0)]), "pose": pose}
+                   "g_ep": g_ep, "g_tr": g_tr, "pose": pose}
             return total, aux
 
         @eqx.filter_jit
