@@ -141,7 +141,12 @@ class TissueConfig:
 
 @dataclass(frozen=True)
 class Config:
-    """Everything :func:`ncflow.match` needs besides the inputs."""
+    """Everything :func:`ncflow.match` needs besides the inputs.
+
+    ``divergence_guard`` (> 1, or 0 to disable): when the smoothed data term of a stage rises
+    above this multiple of its best value in that stage, the run is rolled back to its last
+    healthy snapshot and continues with half the learning rate (see ``Matcher.run``).
+    """
 
     preset: str = "fast"
     seed: int = 0
@@ -157,6 +162,7 @@ class Config:
     interp: str = "sclerp"
     compress: int | None = 3000
     frames: int = 20
+    divergence_guard: float = 2.0
 
     @property
     def total_steps(self) -> int:
@@ -358,6 +364,7 @@ def validate_config(config: Config) -> Config:
         (config.interp in ("sclerp", "slerp"), "interp must be 'sclerp' or 'slerp'"),
         (config.compress is None or config.compress >= 10, "compress must be at least 10 (or none)"),
         (config.frames >= 2, "frames must be at least 2"),
+        (config.divergence_guard == 0 or config.divergence_guard > 1, "divergence_guard must be 0 (off) or above 1"),
         (len(config.phases) >= 1, "at least one phase is needed"),
     ]
     for ok, message in checks:

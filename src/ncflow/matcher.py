@@ -25,6 +25,8 @@ only the flow's departure from an articulated rigid motion. Multipliers follow a
 from 0 to 2η over the run: the shape is matched first while λ is small, then the bones are
 tightened (the release moves its multipliers with its sign-like Adam steps, the same
 normalisation). The soft mode (ARC-Flow baseline) uses C = w_soft · mean_k g_k/ε with fixed weights.
+A :class:`DivergenceGuard` rolls a stage back to its last healthy snapshot, at half the learning
+rate, when the data term runs away (``config.divergence_guard``).
 """
 
 from __future__ import annotations
@@ -282,6 +284,64 @@ def _phase_schedule(p: PhaseConfig) -> Callable[[int], float]:
     return lambda s: float(sched(s))
 
 
+class DivergenceGuard:
+    """Watches a stage and rolls the optimisation back when it runs away.
+
+    Two signals, each smoothed by an exponential moving average (weight ``smooth``) and compared
+    with its best value in the stage (after ``settle`` steps, since a stage starts at a new σ):
+    the data term d̄ (runs away when d̄ > ``factor``·best — the constraints overpowering the
+    match) and the largest bone violation v̄ = max_k g_k/ε (runs away when v̄ > 5·``factor``·best
+    and v̄ > ``min_violation`` — a bone torn apart, e.g. a finger drifting into a half-turn
+    twist; watched from the second stage on, since the first starts from the identity flow,
+    where every g_k is 0). While both are near their best (≤ 1.2·best) a snapshot of the state is taken every
+    ``every`` steps. On a runaway :meth:`observe` answers ``"rollback"``: the caller restores
+    :attr:`snapshot` and multiplies its learning rate by :attr:`lr_scale` (halved at each
+    roll-back); after ``max_trips`` roll-backs in one stage it answers ``"stop"`` (restore and
+    end the stage). ``factor`` = 0 disables it (always ``"ok"``).
+    """
+
+    def __init__(self, factor: float = 2.0, every: int = 20, smooth: float = 0.1, settle: int = 10,
+                 max_trips: int = 3, min_violation: float = 20.0):
+        self.factor, self.every, self.smooth, self.settle = factor, every, smooth, settle
+        self.max_trips, self.min_violation = max_trips, min_violation
+        self.lr_scale = 1.0
+        self.events: list[dict] = []
+        self.start_stage(None)
+
+    def start_stage(self, state, watch_violation: bool = True) -> None:
+        self.watch_violation = watch_violation
+        self.ema: np.ndarray | None = None
+        self.best = np.full(2, np.inf)
+        self.seen = 0
+        self.trips = 0
+        self.snapshot = state
+        self.snapshot_ema: np.ndarray | None = None
+
+    def observe(self, data: float, state, step: int, violation: float = 0.0) -> str:
+        """Feed the data term and the largest g_k/ε of the step just taken and the state after it."""
+        if not self.factor:
+            return "ok"
+        x = np.array([data, violation], float)
+        self.ema = x if self.ema is None else (1 - self.smooth) * self.ema + self.smooth * x
+        self.seen += 1
+        if self.seen <= self.settle:
+            return "ok"
+        self.best = np.minimum(self.best, self.ema)
+        d, v = self.ema
+        torn = self.watch_violation and v > 5 * self.factor * self.best[1] and v > self.min_violation
+        if d > self.factor * self.best[0] or torn:
+            self.trips += 1
+            self.lr_scale *= 0.5
+            self.events.append({"step": step, "data_smoothed": float(d), "data_best": float(self.best[0]),
+                                "violation_smoothed": float(v), "violation_best": float(self.best[1]),
+                                "lr_scale": self.lr_scale})
+            self.ema = self.snapshot_ema
+            return "stop" if self.trips >= self.max_trips else "rollback"
+        if self.seen % self.every == 0 and np.all(self.ema <= 1.2 * self.best):
+            self.snapshot, self.snapshot_ema = state, self.ema
+        return "ok"
+
+
 # ----------------------------------------------------------------------------------------------
 # the matcher
 
@@ -500,6 +560,7 @@ class Matcher:
         history = []
         done = 0
         aux = None
+        guard = DivergenceGuard(cfg.divergence_guard)
         for st in self.stages:
             if st.metric not in steps_fn:
                 steps_fn[st.metric] = self._make_step(st.metric, optimizer)
@@ -509,14 +570,27 @@ class Matcher:
             pw = st.phase_config.constraint_weight
             cw = jnp.asarray([pw, pw if st.phase_config.trajectory else 0.0], DTYPE)
             phase_name = st.phase_config.name or st.metric
+            guard.start_stage((params, pose, opt_state, lam), watch_violation=done > 0)
             for s in range(st.steps):
-                lr = jnp.asarray(schedule(st.start + s), DTYPE)
+                lr = jnp.asarray(schedule(st.start + s) * guard.lr_scale, DTYPE)
                 params, pose, opt_state, lam, aux = step(
                     params, pose, opt_state, lam, target, jnp.asarray(st.sigma, DTYPE),
                     jnp.asarray(st.phase_config.sigma_normal, DTYPE), jnp.asarray(yy, DTYPE), cw, lr,
                     jnp.asarray(done / cfg.total_steps, DTYPE), jax.random.fold_in(k_train, done),
                 )
                 done += 1
+                viol = max(float(jnp.max(aux["g_ep"])), float(jnp.max(aux["g_tr"]))) / cfg.constraints.eps
+                verdict = guard.observe(float(aux["data"]), (params, pose, opt_state, lam), done, viol)
+                if verdict != "ok":
+                    params, pose, opt_state, lam = guard.snapshot
+                    ev = guard.events[-1]
+                    self.progress.message(
+                        f"[{phase_name} σ={st.sigma:g}] step {done}: the run went astray (data {ev['data_smoothed']:.3g}, "
+                        f"best {ev['data_best']:.3g}; bone g/eps {ev['violation_smoothed']:.3g}, best {ev['violation_best']:.3g}); "
+                        + ("rolled back, learning rate halved" if verdict == "rollback" else "rolled back, stage ended")
+                    )
+                    if verdict == "stop":
+                        break
                 report = done % max(1, self.progress.every // 4 or 1) == 0 or s == st.steps - 1 or self.progress.tty
                 if report:
                     loss = float(aux["loss"])
@@ -541,6 +615,7 @@ class Matcher:
         result = self._result(params, pose, lam, history, k_eval)
         result.metrics["timings"].update(train=train_seconds, per_step=train_seconds / max(done, 1),
                                          outputs=time.perf_counter() - t_out)
+        result.metrics["rollbacks"] = guard.events
         result.metrics["timings"]["total"] = sum(v for k, v in result.metrics["timings"].items() if k in ("setup", "train", "outputs"))
         return result
 
