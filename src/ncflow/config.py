@@ -144,8 +144,10 @@ class Config:
     """Everything :func:`ncflow.match` needs besides the inputs.
 
     ``divergence_guard`` (> 1, or 0 to disable): when the smoothed data term of a stage rises
-    above this multiple of its best value in that stage, the run is rolled back to its last
-    healthy snapshot and continues with half the learning rate (see ``Matcher.run``).
+    above this multiple of its best value in that stage (or, from the second stage on, the
+    largest bone violation above 5× this multiple of its best and above 20 ε), the run is rolled
+    back to its last healthy snapshot and continues with half the learning rate
+    (``matcher.DivergenceGuard``).
     """
 
     preset: str = "fast"

@@ -26,7 +26,7 @@ from 0 to 2η over the run: the shape is matched first while λ is small, then t
 tightened (the release moves its multipliers with its sign-like Adam steps, the same
 normalisation). The soft mode (ARC-Flow baseline) uses C = w_soft · mean_k g_k/ε with fixed weights.
 A :class:`DivergenceGuard` rolls a stage back to its last healthy snapshot, at half the learning
-rate, when the data term runs away (``config.divergence_guard``).
+rate, when the data term or the largest bone violation runs away (``config.divergence_guard``).
 """
 
 from __future__ import annotations
