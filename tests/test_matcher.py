@@ -72,16 +72,17 @@ def test_mdmm_meets_tolerance_and_soft_mode_does_not(pair, mdmm_result):
     c = mdmm_result.metrics["constraints"]
     eps = c["eps"]
     g_mdmm = max(c["max_g_endpoint"], c["max_g_trajectory"])
-    # the soft weight is one at which the soft baseline matches as well as MDMM on this pair
-    # (mean error to the analytic bend 0.060 vs 0.056); a stiffer weight trades matching for rigidity
+    # the soft weight was chosen where the soft baseline matched this pair about as well as MDMM
+    # (mean error to the analytic bend 0.060 vs 0.056 when chosen); a stiffer weight trades
+    # matching for rigidity
     soft = match(src, tgt, skel, small_config(**{"constraints.mode": "soft", "constraints.soft_weight": 0.001}), quiet=True)
     cs = soft.metrics["constraints"]
     g_soft = max(cs["max_g_endpoint"], cs["max_g_trajectory"])
-    # measured on this short run: MDMM 2.6 eps, soft 5.6 eps. The fast preset does not reach
-    # g <= eps in 150 steps (see the issue notes); MDMM must still be within a few eps and well
-    # below the soft-penalty baseline on the same run.
-    assert g_mdmm <= 4 * eps, g_mdmm / eps
-    assert g_soft > 1.5 * g_mdmm, (g_soft / eps, g_mdmm / eps)
+    # measured on this short run (150 steps; g from 200 fresh samples per bone): MDMM 1.10 eps,
+    # soft 4.17 eps. The target is g <= eps; the fast preset ends just above it here (see the
+    # issue notes), so this asserts a little slack over eps and a clear gap to the soft baseline.
+    assert g_mdmm <= 1.5 * eps, g_mdmm / eps
+    assert g_soft > 2.5 * g_mdmm, (g_soft / eps, g_mdmm / eps)
 
 
 def test_frames_start_at_source_and_field_moves_other_points(pair, mdmm_result):

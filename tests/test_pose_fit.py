@@ -6,7 +6,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ncflow.flow import time_grid
-from ncflow.matcher import fit_pose
+from ncflow.losses import bone_constraints
+from ncflow.matcher import constraint_fit_weights, fit_pose
 from ncflow.skeleton import Skeleton, rigid_reference, sample_bones
 from ncflow.skeleton.kinematics import Pose, rest_pose
 
@@ -61,3 +62,34 @@ def test_each_gauss_newton_step_is_capped_by_the_trust_region():
     moved = np.abs(np.asarray(one.rotations) - np.asarray(rest.rotations)).max()
     assert 0.005 < moved <= 0.0101  # capped (then renormalised), yet it moves
     assert np.abs(np.asarray(one.translation)).max() <= 0.01 + 1e-12
+
+
+def test_fit_weights_make_the_fit_objective_the_constraint_term():
+    """Σ_t Σ_k w_tk mean_s ‖p̄ − x‖² equals Σ_k (1 + λ^EP_k) g^EP_k + τ (1 + λ^TR_k) g^TR_k."""
+    rng = np.random.default_rng(0)
+    pts = _samples(12)
+    flowed = rigid_reference(SKEL, _twisted_pose(0.4), pts, TIMES, "sclerp") + 0.02 * rng.standard_normal((6, 4, 12, 3))
+    reference = rigid_reference(SKEL, rest_pose(SKEL, jnp.float64), pts, TIMES, "sclerp")
+    lam_ep, lam_tr, tau = rng.uniform(0, 50, 4), rng.uniform(0, 50, 4), 0.7
+    w = np.asarray(constraint_fit_weights(6, 4, jnp.float64, lam_ep, lam_tr, tau))
+    assert w.shape == (6, 4) and np.all(w[0] == 0)
+    d2 = np.mean(np.sum((np.asarray(reference) - np.asarray(flowed)) ** 2, axis=-1), axis=-1)  # (T, B)
+    g_ep, g_tr = (np.asarray(g) for g in bone_constraints(flowed, reference))
+    want = np.sum((1 + lam_ep) * g_ep + tau * (1 + lam_tr) * g_tr)
+    np.testing.assert_allclose(np.sum(w * d2), want, rtol=1e-12)
+
+
+def test_a_heavier_endpoint_weight_fits_the_endpoint_better():
+    """Interior states off the articulated path: weighting the endpoint pulls the fit to it."""
+    pts = _samples()
+    true = _twisted_pose(0.3)
+    flowed = np.array(rigid_reference(SKEL, true, pts, TIMES, "sclerp"))
+    flowed[1:-1] += np.array([0.05, -0.03, 0.04])  # the trajectory bulges; the endpoint is exact
+    ends = []
+    for lam_ep in (0.0, 100.0):
+        w = constraint_fit_weights(6, 4, jnp.float64, lam_ep=jnp.full(4, lam_ep))
+        fitted = fit_pose(SKEL, rest_pose(SKEL, jnp.float64), pts, jnp.asarray(flowed), TIMES, "sclerp",
+                          iterations=40, max_step=0.1, weights=w)
+        ref = rigid_reference(SKEL, fitted, pts, TIMES, "sclerp")
+        ends.append(float(np.max(np.asarray(bone_constraints(jnp.asarray(flowed), ref)[0]))))
+    assert ends[1] < 0.05 * ends[0] and ends[0] > 1e-5, ends

@@ -115,7 +115,7 @@ class ConstraintConfig:
     mode: str = "mdmm"
     eps: float = 3e-4
     damping: float = 1.0
-    multiplier_lr: float = 0.3
+    multiplier_lr: float = 1.0
     weight: float = 1.0
     soft_weight: float = 1.0
     trajectory_weight: float = 1.0

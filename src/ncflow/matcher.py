@@ -19,8 +19,9 @@ random edges, L_soft the tissue stencil term, and C the bone-constraint term: wi
 C = w · mean_k(λ_k Γ_k + (δ/2) Γ_k²) with Γ_k = max(g_k − ε, 0) for the endpoint and (in
 phases with ``trajectory``) the trajectory constraints. The skeleton pose is eliminated: at every
 step it is set to the least-squares articulated fit of the flowed bone samples (:func:`fit_pose`,
-warm-started Gauss–Newton), the minimiser of the constraint term over the pose, so g_k measures
-only the flow's departure from an articulated rigid motion. Multipliers follow a normalised
+warm-started Gauss–Newton) weighted by the current multipliers (:func:`constraint_fit_weights`),
+so it minimises the constraint term over the pose and g_k measures only the flow's departure
+from an articulated rigid motion. Multipliers follow a normalised
 (sign) ascent projected on λ ≥ 0, λ ← max(0, λ + η_t sign(g_k − ε)), with η_t ramping linearly
 from 0 to 2η over the run: the shape is matched first while λ is small, then the bones are
 tightened (the release moves its multipliers with its sign-like Adam steps, the same
@@ -68,6 +69,7 @@ from .skeleton.kinematics import Pose, rest_pose
 __all__ = ["Matcher", "MatchResult", "TrainingError", "match"]
 
 DTYPE = jnp.float32
+FINAL_BONE_SAMPLES = 200  # per bone, for the reported g_k (fresh samples, so an estimate of the integral)
 
 
 class TrainingError(NcflowError):
@@ -352,34 +354,55 @@ class Params(eqx.Module):
 
 
 def fit_pose(
-    skeleton: Skeleton, pose: Pose, rest_points, flowed, times, interp: str, iterations: int = 2, max_step: float = 0.02
+    skeleton: Skeleton, pose: Pose, rest_points, flowed, times, interp: str, iterations: int = 2, max_step: float = 0.02,
+    weights=None,
 ) -> Pose:
     """Least-squares articulated fit of flowed bone samples: Gauss–Newton on the pose parameters.
 
-    Minimises Σ_t Σ_k Σ_s ‖p̄_k,s(t; pose) − x_k,s(t)‖² over the joint rotations and the root
-    translation, warm-started from ``pose`` (Levenberg damping ∝ tr(JᵀJ)/P handles the gauge
+    Minimises Σ_t Σ_k w_t,k Σ_s ‖p̄_k,s(t; pose) − x_k,s(t)‖² over the joint rotations and the root
+    translation; ``weights`` (broadcastable to (T, B); default :func:`constraint_fit_weights` with
+    equal multipliers, i.e. the endpoint counts as much as the whole interior trajectory, as in
+    g^EP + g^TR). Warm-started from ``pose`` (Levenberg damping ∝ tr(JᵀJ)/P handles the gauge
     directions: quaternion scale, rotations of leaf joints; 1e-3 in the code); each step is capped at ``max_step`` per
     parameter (a trust region, so a poor flow early on cannot fling the skeleton). ``flowed``
     (T, B, n, 3) is treated as data.
     """
     flat0, unravel = jax.flatten_util.ravel_pytree(pose)
+    n_times = flowed.shape[0]
+    if weights is None:
+        weights = constraint_fit_weights(n_times, flowed.shape[1], flowed.dtype)
+    root = jnp.sqrt(jnp.broadcast_to(jnp.asarray(weights, flowed.dtype), flowed.shape[:2]))[:, :, None, None]
 
     def residual(flat):
-        return (rigid_reference(skeleton, unravel(flat), rest_points, times, interp) - flowed).reshape(-1)
+        return (root * (rigid_reference(skeleton, unravel(flat), rest_points, times, interp) - flowed)).reshape(-1)
 
-    flat = flat0
-    for _ in range(iterations):
+    def gauss_newton(_, flat):
         r = residual(flat)
         jac = jax.jacfwd(residual)(flat)
         a = jac.T @ jac
         mu = 1e-3 * jnp.trace(a) / a.shape[0] + 1e-12
         delta = jnp.linalg.solve(a + mu * jnp.eye(a.shape[0], dtype=a.dtype), jac.T @ r)
         delta = delta * jnp.minimum(1.0, max_step / (jnp.max(jnp.abs(delta)) + 1e-12))  # trust region
-        flat = flat - delta
-        new = unravel(flat)
+        new = unravel(flat - delta)
         rot = new.rotations / jnp.linalg.norm(new.rotations, axis=-1, keepdims=True)
-        flat = jax.flatten_util.ravel_pytree(Pose(rot, new.translation))[0]
-    return unravel(flat)
+        return jax.flatten_util.ravel_pytree(Pose(rot, new.translation))[0]
+
+    return unravel(jax.lax.fori_loop(0, iterations, gauss_newton, flat0))
+
+
+def constraint_fit_weights(n_times: int, n_bones: int, dtype=DTYPE, lam_ep=None, lam_tr=None, trajectory: float = 1.0):
+    """(T, B) per-time, per-bone weights under which the pose fit minimises the constraint term.
+
+    The constraint term is Σ_k (1 + λ^EP_k) g^EP_k + τ (1 + λ^TR_k) g^TR_k with g^TR the mean over the
+    T − 2 interior grid times: the endpoint state gets weight 1 + λ^EP, each interior state
+    τ (1 + λ^TR)/(T − 2), t = 0 none (its residual is zero). With no multipliers the endpoint counts
+    as much as the whole interior trajectory.
+    """
+    lam_ep = jnp.zeros((n_bones,), dtype) if lam_ep is None else jnp.asarray(lam_ep, dtype)
+    lam_tr = jnp.zeros((n_bones,), dtype) if lam_tr is None else jnp.asarray(lam_tr, dtype)
+    interior = trajectory * (1.0 + lam_tr) / max(n_times - 2, 1)
+    rows = [jnp.zeros((n_bones,), dtype)] + [interior] * (n_times - 2) + [1.0 + lam_ep]
+    return jnp.stack(rows[-n_times:]).astype(dtype)
 
 
 class Matcher:
@@ -502,7 +525,8 @@ class Matcher:
             local = jnp.stack([jnp.arange(e.shape[0]), e.shape[0] + jnp.arange(e.shape[0])], axis=1)
             surf_loss = arap_energy(rest, local, ends, rot.astype(DTYPE))
             soft = tissue_distortion(xs[:, nv + nb :], delta) if n_tissue else jnp.zeros((), DTYPE)
-            pose = fit_pose(skel, pose, bones, jax.lax.stop_gradient(flowed_bones), times, interp)
+            fw = constraint_fit_weights(n_times, bones.shape[0], DTYPE, lam[0] * cw[0], lam[1] * cw[1], c.trajectory_weight)
+            pose = fit_pose(skel, pose, bones, jax.lax.stop_gradient(flowed_bones), times, interp, weights=fw)
             pose = jax.lax.stop_gradient(pose)
             reference = rigid_reference(skel, pose, bones, times, interp)
             g_ep, g_tr = bone_constraints(flowed_bones, reference)
@@ -601,7 +625,7 @@ class Matcher:
                             f"training diverged at step {done} ({phase_name}, sigma={st.sigma:g}): non-finite loss; "
                             "try a smaller learning rate (e.g. phases.lr) or check the inputs"
                         )
-                    viol = float(jnp.max(aux["g_ep"])) / cfg.constraints.eps
+                    viol = float(watch[1])
                     self.progress.update(done, f"{phase_name} σ={st.sigma:g}", loss, viol)
             history.append({
                 "phase": phase_name, "metric": st.metric, "sigma": st.sigma, "steps": st.steps,
@@ -622,7 +646,7 @@ class Matcher:
 
     def _final_constraints(self, params: Params, pose: Pose, key) -> tuple[np.ndarray, np.ndarray]:
         cfg = self.config
-        bones = sample_bones(self.skel_n, key, 50, radius=self.radii, dtype=DTYPE).points
+        bones = sample_bones(self.skel_n, key, FINAL_BONE_SAMPLES, radius=self.radii, dtype=DTYPE).points
         xs = flow_points(params.flow, bones.reshape(-1, 3), cfg.flow.n_times).reshape(cfg.flow.n_times, *bones.shape)
         times = time_grid(cfg.flow.n_times, DTYPE)
         pose = fit_pose(self.skel_n, pose, bones, xs, times, cfg.interp, iterations=3)
