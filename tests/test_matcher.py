@@ -78,10 +78,11 @@ def test_mdmm_meets_tolerance_and_soft_mode_does_not(pair, mdmm_result):
     soft = match(src, tgt, skel, small_config(**{"constraints.mode": "soft", "constraints.soft_weight": 0.001}), quiet=True)
     cs = soft.metrics["constraints"]
     g_soft = max(cs["max_g_endpoint"], cs["max_g_trajectory"])
-    # measured on this short run (150 steps; g from 200 fresh samples per bone): MDMM 1.10 eps,
-    # soft 4.17 eps. The target is g <= eps; the fast preset ends just above it here (see the
-    # issue notes), so this asserts a little slack over eps and a clear gap to the soft baseline.
-    assert g_mdmm <= 1.5 * eps, g_mdmm / eps
+    # measured on this short run (150 steps; g from 200 fresh samples per bone, pose refitted with
+    # the final multiplier weights): MDMM 0.99 eps, soft 4.2 eps. The target is g <= eps; the
+    # assertion leaves 20 % for platform-dependent float differences, and asserts a clear gap to
+    # the soft baseline.
+    assert g_mdmm <= 1.2 * eps, g_mdmm / eps
     assert g_soft > 2.5 * g_mdmm, (g_soft / eps, g_mdmm / eps)
 
 

@@ -637,24 +637,28 @@ class Matcher:
             raise TrainingError("training produced non-finite parameters")
         train_seconds = time.perf_counter() - t_train
         t_out = time.perf_counter()
-        result = self._result(params, pose, lam, history, k_eval)
+        result = self._result(params, pose, lam, cw, history, k_eval)
         result.metrics["timings"].update(train=train_seconds, per_step=train_seconds / max(done, 1),
                                          outputs=time.perf_counter() - t_out)
         result.metrics["rollbacks"] = guard.events
         result.metrics["timings"]["total"] = sum(v for k, v in result.metrics["timings"].items() if k in ("setup", "train", "outputs"))
         return result
 
-    def _final_constraints(self, params: Params, pose: Pose, key) -> tuple[np.ndarray, np.ndarray]:
+    def _final_pose(self, params: Params, pose: Pose, lam, cw, key) -> tuple[Pose, np.ndarray, np.ndarray]:
+        """The output pose and its (g^EP, g^TR): the training pose refined on FINAL_BONE_SAMPLES fresh
+        samples per bone with the final multiplier weights (the per-step fit sees only a few samples)."""
         cfg = self.config
+        c = cfg.constraints
         bones = sample_bones(self.skel_n, key, FINAL_BONE_SAMPLES, radius=self.radii, dtype=DTYPE).points
         xs = flow_points(params.flow, bones.reshape(-1, 3), cfg.flow.n_times).reshape(cfg.flow.n_times, *bones.shape)
         times = time_grid(cfg.flow.n_times, DTYPE)
-        pose = fit_pose(self.skel_n, pose, bones, xs, times, cfg.interp, iterations=3)
+        fw = constraint_fit_weights(cfg.flow.n_times, bones.shape[0], DTYPE, lam[0] * cw[0], lam[1] * cw[1], c.trajectory_weight)
+        pose = fit_pose(self.skel_n, pose, bones, xs, times, cfg.interp, iterations=3, weights=fw)
         ref = rigid_reference(self.skel_n, pose, bones, times, cfg.interp)
         g_ep, g_tr = bone_constraints(xs, ref)
-        return np.asarray(g_ep, np.float64), np.asarray(g_tr, np.float64)
+        return pose, np.asarray(g_ep, np.float64), np.asarray(g_tr, np.float64)
 
-    def _result(self, params: Params, pose: Pose, lam, history, key) -> MatchResult:
+    def _result(self, params: Params, pose: Pose, lam, cw, history, key) -> MatchResult:
         from .export import correspondence_maps
 
         cfg = self.config
@@ -666,11 +670,11 @@ class Matcher:
         deformed_n = frames_n[-1]  # Hermite output at a grid time is the grid state: the state at t = 1
         if not (np.all(np.isfinite(frames_n)) and np.all(np.isfinite(deformed_n))):
             raise TrainingError("the trained flow produced non-finite positions")
+        pose, g_ep, g_tr = self._final_pose(params, pose, lam, cw, key)
         joints = np.stack([
             np.asarray(interpolate_joints(self.skel_n, pose, float(t), cfg.interp), np.float64) for t in frame_times
         ])
         maps = correspondence_maps(self.src_v, self.source.faces, deformed_n, self.tgt_v, self.target.faces)
-        g_ep, g_tr = self._final_constraints(params, pose, key)
         eps = cfg.constraints.eps
         names = self.skeleton.names or tuple(f"joint {j}" for j in range(self.skeleton.n_joints))
         bones = [
