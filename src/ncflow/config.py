@@ -55,11 +55,18 @@ METRICS = ("varifold", "normal-cycles")
 
 @dataclass(frozen=True)
 class FlowConfig:
-    """Flow-Net F_θ(x, t) (paper §4.6): MLP width, hidden layers, divergence-free option, ODE grid size T."""
+    """Flow-Net F_θ(x, t) (paper §4.6): MLP width, hidden layers, divergence-free option, ODE grid size T.
+
+    ``skinning`` adds the skeleton's blended rigid bone velocities to the Flow-Net, with the pose
+    trained by the data term (:class:`ncflow.flow.SkinnedField`; not in the paper, on in ``fast``);
+    ``skinning_width`` is the width τ of its bone weights as a fraction of the median bone length.
+    """
 
     width: int = 64
     depth: int = 3
     div_free: bool = False
+    skinning: bool = True
+    skinning_width: float = 0.05
     n_times: int = 10
     gso_width: int = 32
     gso_depth: int = 2
@@ -110,10 +117,15 @@ class ConstraintConfig:
     multipliers λ ≥ 0 updated every step by λ ← max(0, λ ± η_t) (up while violated, down once
     satisfied; η_t ramps from 0 to 2·``multiplier_lr`` over the run) and damping δ = ``damping``; "soft": a fixed penalty ``soft_weight`` · mean_k g_k/ε
     (the ARC-Flow baseline). ``trajectory_weight`` scales the interior-time constraints.
+    ``margin`` (0 < margin ≤ 1): the MDMM terms aim at g_k ≤ margin·ε. MDMM settles each active
+    constraint *at* its target, fluctuating around it with the per-step sampling; aiming a
+    margin below ε keeps the final values (estimated on fresh samples) under ε. The ``paper``
+    preset aims at ε itself (margin 1), as the release.
     """
 
     mode: str = "mdmm"
     eps: float = 3e-4
+    margin: float = 0.7
     damping: float = 1.0
     multiplier_lr: float = 1.0
     weight: float = 1.0
@@ -184,14 +196,14 @@ def _fast() -> Config:
 def _paper() -> Config:
     return Config(
         preset="paper",
-        flow=FlowConfig(width=256, depth=6, n_times=10, gso_width=128, gso_depth=3),
+        flow=FlowConfig(width=256, depth=6, n_times=10, gso_width=128, gso_depth=3, skinning=False),
         sampling=SamplingConfig(bone_samples=50, tissue_samples=2000, surface_edges=0),
         phases=(
             PhaseConfig(name="varifold", metric="varifold", steps=2000, sigmas=(0.5, 0.25), lr=3e-3, warmup=100, trajectory=False),
             PhaseConfig(name="normal-cycles", metric="normal-cycles", steps=2000, sigmas=(0.25, 0.1), lr=3e-3, lr_end=1e-4, warmup=100),
             PhaseConfig(name="fine-tune", metric="normal-cycles", steps=1000, sigmas=(0.1,), lr=1e-4, warmup=100),
         ),
-        constraints=ConstraintConfig(eps=3e-4),
+        constraints=ConstraintConfig(eps=3e-4, margin=1.0),
         weights=WeightsConfig(surface=20.0, tissue=10.0),
         tissue=TissueConfig(edge_length_fac=0.05, epsilon=1e-3, split_passes=2),
         compress=6000,
@@ -356,12 +368,16 @@ def validate_config(config: Config) -> Config:
         (config.flow.width >= 1, "flow.width must be at least 1"),
         (config.flow.depth >= 1, "flow.depth must be at least 1"),
         (config.flow.n_times >= 2, "flow.n_times must be at least 2"),
+        (config.flow.skinning_width > 0, "flow.skinning_width must be positive"),
+        (not (config.flow.skinning and config.flow.div_free),
+         "flow.div_free needs flow.skinning=false (blended bone velocities are not divergence-free)"),
         (config.sampling.bone_samples >= 5, "sampling.bone_samples must be at least 5"),
         (config.sampling.bone_radius > 0, "sampling.bone_radius must be positive"),
         (config.sampling.tissue_samples >= 0, "sampling.tissue_samples must be non-negative"),
         (config.sampling.tissue_delta > 0, "sampling.tissue_delta must be positive"),
         (config.constraints.mode in ("mdmm", "soft"), "constraints.mode must be 'mdmm' or 'soft'"),
         (config.constraints.eps > 0, "constraints.eps must be positive"),
+        (0 < config.constraints.margin <= 1, "constraints.margin must be in (0, 1]"),
         (config.optimizer in ("adabelief", "vectoradam"), "optimizer must be 'adabelief' or 'vectoradam'"),
         (config.interp in ("sclerp", "slerp"), "interp must be 'sclerp' or 'slerp'"),
         (config.compress is None or config.compress >= 10, "compress must be at least 10 (or none)"),

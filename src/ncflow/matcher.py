@@ -3,8 +3,9 @@
 Pipeline (DESIGN.md "Pipeline"): validate inputs → one similarity normalises source, target and
 skeleton → topology and target measures (Varifold / Normal Cycles, compressed per length scale
 when larger than ``config.compress``) → soft-tissue samples (fTetWild once, cached) → optimise the
-flow net F_θ, the GSO rotation net, the skeleton pose (joint rotations + root translation) and the
-per-bone multipliers, phase by phase → flow the full source, interpolate frames and the skeleton,
+flow net F_θ (with the ``fast`` preset a :class:`~ncflow.flow.SkinnedField`: blended rigid bone
+velocities of a trained skeleton pose plus the Flow-Net), the GSO rotation net and the per-bone
+multipliers, phase by phase → flow the full source, interpolate frames and the skeleton,
 project the target for the correspondence → :class:`MatchResult` in the user's coordinates.
 
 Per step, one point set is flowed through the fixed-grid integrator: all source vertices, fresh
@@ -16,13 +17,14 @@ tissue sample). The objective is
 with the data term relative to the target's self-energy (so one set of weights works across
 meshes, scales and σ), L_surf the ARAP term against the GSO-Net on ``sampling.surface_edges``
 random edges, L_soft the tissue stencil term, and C the bone-constraint term: with MDMM,
-C = w · mean_k(λ_k Γ_k + (δ/2) Γ_k²) with Γ_k = max(g_k − ε, 0) for the endpoint and (in
-phases with ``trajectory``) the trajectory constraints. The skeleton pose is eliminated: at every
+C = w · mean_k(λ_k Γ_k + (δ/2) Γ_k²) with Γ_k = max(g_k − mε, 0) (m = ``constraints.margin``, so
+the values that MDMM settles at stay under ε) for the endpoint and (in phases with
+``trajectory``) the trajectory constraints. The skeleton pose of the constraints is eliminated: at every
 step it is set to the least-squares articulated fit of the flowed bone samples (:func:`fit_pose`,
 warm-started Gauss–Newton) weighted by the current multipliers (:func:`constraint_fit_weights`),
 so it minimises the constraint term over the pose and g_k measures only the flow's departure
 from an articulated rigid motion. Multipliers follow a normalised
-(sign) ascent projected on λ ≥ 0, λ ← max(0, λ + η_t sign(g_k − ε)), with η_t ramping linearly
+(sign) ascent projected on λ ≥ 0, λ ← max(0, λ + η_t sign(g_k − mε)), with η_t ramping linearly
 from 0 to 2η over the run: the shape is matched first while λ is small, then the bones are
 tightened (the release moves its multipliers with its sign-like Adam steps, the same
 normalisation). The soft mode (ARC-Flow baseline) uses C = w_soft · mean_k g_k/ε with fixed weights.
@@ -50,7 +52,7 @@ import numpy as np
 from . import __version__
 from .config import Config, PhaseConfig, config_to_dict, preset, validate_config
 from .errors import InputError, NcflowError
-from .flow import GSONet, flow_points, integrate, make_flow_field, time_grid
+from .flow import GSONet, SkinnedField, flow_points, integrate, make_flow_field, time_grid
 from .losses import arap_energy, bone_constraints, sample_edges, tissue_distortion, tissue_stencil
 from .measures import (
     compress_normal_cycle,
@@ -494,6 +496,7 @@ class Matcher:
         times = time_grid(n_times, DTYPE)
         radii = self.radii
         eps = cfg.constraints.eps
+        aim = cfg.constraints.margin * eps  # the multipliers' target, a margin below the reported tolerance
         c = cfg.constraints
         w = cfg.weights
         interp = cfg.interp
@@ -530,8 +533,8 @@ class Matcher:
             pose = jax.lax.stop_gradient(pose)
             reference = rigid_reference(skel, pose, bones, times, interp)
             g_ep, g_tr = bone_constraints(flowed_bones, reference)
-            gam_ep = jnp.maximum(g_ep - eps, 0.0)
-            gam_tr = jnp.maximum(g_tr - eps, 0.0)
+            gam_ep = jnp.maximum(g_ep - aim, 0.0)
+            gam_tr = jnp.maximum(g_tr - aim, 0.0)
             if c.mode == "mdmm":
                 term = lambda lam_, gam: jnp.mean(lam_ * gam + 0.5 * c.damping * gam**2)  # noqa: E731
                 cons = c.weight * (cw[0] * term(lam[0], gam_ep) + cw[1] * c.trajectory_weight * term(lam[1], gam_tr))
@@ -555,7 +558,7 @@ class Matcher:
                 g = jnp.stack([aux["g_ep"], aux["g_tr"]])
                 active = (cw > 0).astype(lam.dtype)[:, None]
                 rate = c.multiplier_lr * 2.0 * progress  # ramps 0 -> 2η: free early, tight late
-                lam = jnp.maximum(lam + rate * active * jnp.sign(g - eps), 0.0)
+                lam = jnp.maximum(lam + rate * active * jnp.sign(g - aim), 0.0)
             return params, aux.pop("pose"), opt_state, lam, aux
 
         return step
@@ -564,6 +567,9 @@ class Matcher:
         cfg = self.config
         kf, kg = jax.random.split(key)
         field = make_flow_field(kf, width=cfg.flow.width, depth=cfg.flow.depth, div_free=cfg.flow.div_free, dtype=DTYPE)
+        if cfg.flow.skinning:
+            width = cfg.flow.skinning_width * float(np.median(self.skel_n.bone_lengths))
+            field = SkinnedField(field, self.skel_n, width=width, interp=cfg.interp, dtype=DTYPE)
         gso = GSONet(kg, width=cfg.flow.gso_width, depth=cfg.flow.gso_depth, dtype=DTYPE)
         return Params(field, gso)
 

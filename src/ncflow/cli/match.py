@@ -20,7 +20,7 @@ def add_config_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--interp", choices=["sclerp", "slerp"], help="skeleton interpolation (default sclerp)")
     p.add_argument("--constraints", choices=["mdmm", "soft"], help="bone constraints: MDMM (default) or soft penalty")
     p.add_argument("--optimizer", choices=["adabelief", "vectoradam"], help="optimiser (default adabelief)")
-    p.add_argument("--div-free", action="store_true", help="divergence-free (volume-preserving) flow field")
+    p.add_argument("--div-free", action="store_true", help="divergence-free (volume-preserving) flow field (turns flow.skinning off)")
     p.add_argument(
         "--set",
         action="append",
@@ -51,7 +51,7 @@ def config_from_args(args: argparse.Namespace):
     if args.optimizer:
         cfg = dataclasses.replace(cfg, optimizer=args.optimizer)
     if args.div_free:
-        cfg = dataclasses.replace(cfg, flow=dataclasses.replace(cfg.flow, div_free=True))
+        cfg = dataclasses.replace(cfg, flow=dataclasses.replace(cfg.flow, div_free=True, skinning=False))
     cfg = apply_overrides(cfg, args.set)
     if args.steps is not None:
         if args.steps < 1:

@@ -1,14 +1,18 @@
 """Neural ODE flow: Flow-Net fields, the fixed-grid integrator with dense output (DESIGN.md "Flow"),
-and the GSO-Net local-rotation network (DESIGN.md "Soft tissue")."""
+the GSO-Net local-rotation network (DESIGN.md "Soft tissue") and the skeleton-driven field
+(:class:`SkinnedField`)."""
 
 from .fields import DivFreeFlowField, FlowField, divergence, make_flow_field
 from .gso import GSONet, rotation_angle, rotation_from_6d
 from .integrate import flow_points, hermite, integrate, time_grid
+from .skinning import SkinnedField, bone_velocities, skinning_weights
 
 __all__ = [
     "DivFreeFlowField",
     "FlowField",
     "GSONet",
+    "SkinnedField",
+    "bone_velocities",
     "divergence",
     "flow_points",
     "hermite",
@@ -16,5 +20,6 @@ __all__ = [
     "make_flow_field",
     "rotation_angle",
     "rotation_from_6d",
+    "skinning_weights",
     "time_grid",
 ]

@@ -1,0 +1,151 @@
+"""Skeleton-driven flow: a Flow-Net plus the blended rigid velocities of the skeleton's bones.
+
+    F(x, t) = Σ_b w_b(x, t) ξ_b(t)(x) + R_θ(x, t),
+
+where R_θ is a Flow-Net (:class:`~ncflow.flow.FlowField`, the paper's Eq. 12 field, here the
+residual), ξ_b(t)(x) = Ω_b(t)(x − c_b(t)) + ċ_b(t) the velocity field of bone b's rigid motion
+M_b(t) = (R_b(t), c_b(t)) from rest to the pose (:func:`ncflow.skeleton.bone_motions`, ScLERP by
+default; Ω_b = Ṙ_b R_bᵀ), and w_b(x, t) = softmax_b(−d_b(x, t)/τ) soft assignment weights
+from the distance d_b of x to bone b's segment posed at time t. A point that stays near the
+middle of a bone is carried by that bone's rigid motion exactly (up to the integrator's error);
+the weights blend neighbouring bones in a band of width ~τ around each joint, where the
+relative motion of the two bones is small. The pose (joint rotations and root translation,
+:class:`~ncflow.skeleton.kinematics.Pose`) is a trainable leaf of the module, so the data term
+drives the skeleton directly.
+
+This is not in the paper: there the Flow-Net alone has to produce the articulated motion and the
+bone constraints (MDMM) make it rigid around the bones. With the small network and the few
+hundred steps that fit a CPU budget, that leaves the bones several times the tolerance from
+rigid; with the skeleton's velocities built in, the network only carries the non-articulated
+remainder (skin sliding, bulging) and the constraints act on that remainder. The field is
+smooth in x and t, so the flow stays a diffeomorphism. ``flow.skinning`` turns it on (the
+``fast`` preset) or off (the ``paper`` preset: the paper's field).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from ..skeleton import Skeleton
+from .integrate import time_grid
+from ..skeleton.dualquat import dq_rotation, dq_translation, quat_to_matrix
+from ..skeleton.kinematics import Pose, bone_motions, rest_pose
+
+__all__ = ["SkinnedField", "skinning_weights", "bone_velocities"]
+
+
+def bone_velocities(
+    skeleton: Skeleton, pose: Pose, t: Float[Array, ""], interp: str = "sclerp", h: float = 1e-3
+) -> tuple[Float[Array, "B 3 3"], Float[Array, "B 3"], Float[Array, "B 3 3"], Float[Array, "B 3"]]:
+    """Each bone's rigid motion at time t, x ↦ R_b x + c_b, and its time derivative (Ṙ_b, ċ_b).
+
+    Returns (R, c, Ṙ, ċ); the velocity of a point x carried by bone b is Ṙ_b R_bᵀ (x − c_b) + ċ_b.
+    The derivative is the central difference with step ``h`` (the motions extend smoothly past
+    [0, 1]); autodiff in t would double the forward kinematics' graph and its compile time, for a
+    difference of O(h²) ≈ 1e-6 relative.
+    """
+    t = jnp.asarray(t, pose.rotations.dtype)
+    m = jax.vmap(lambda s: bone_motions(skeleton, pose, s, interp))(jnp.stack([t, t - h, t + h]))
+    r, c = quat_to_matrix(dq_rotation(m)), dq_translation(m)
+    return r[0], c[0], (r[2] - r[1]) / (2 * h), (c[2] - c[1]) / (2 * h)
+
+
+def _segment_distance(x: Float[Array, "N 3"], a: Float[Array, "B 3"], b: Float[Array, "B 3"]) -> Float[Array, "N B"]:
+    # (N, B) arrays only: the point-bone products come from two matrix products
+    ab = b - a
+    ab2 = jnp.maximum(jnp.sum(ab * ab, -1), 1e-12)
+    ap_ab = x @ ab.T - jnp.sum(a * ab, -1)  # (x − a)·(b − a)
+    ap2 = jnp.sum(x * x, -1)[:, None] - 2.0 * (x @ a.T) + jnp.sum(a * a, -1)  # |x − a|²
+    u = jnp.clip(ap_ab / ab2, 0.0, 1.0)
+    d2 = ap2 - 2.0 * u * ap_ab + u * u * ab2
+    return jnp.sqrt(jnp.maximum(d2, 0.0) + 1e-12)
+
+
+def skinning_weights(
+    x: Float[Array, "N 3"], heads: Float[Array, "B 3"], tails: Float[Array, "B 3"], width: float
+) -> Float[Array, "N B"]:
+    """w_b(x) = softmax_b(−d_b(x)/width), d_b the distance of x to the segment heads[b]–tails[b]."""
+    return jax.nn.softmax(-_segment_distance(x, heads, tails) / width, axis=-1)
+
+
+class SkinnedField(eqx.Module):
+    """F(x, t) = Σ_b w_b(x, t) ξ_b(t)(x) + residual(x, t) (see the module docstring).
+
+    Args:
+        residual: the Flow-Net R_θ (any ``field(x, t)``).
+        skeleton: the source skeleton in the coordinates of the points (normalised, for training).
+        pose: initial pose (default: the rest pose, so the field starts as the residual alone).
+        width: τ of the weights, in the units of the points.
+        interp: "sclerp" (default) or "slerp", as :func:`ncflow.skeleton.interpolate_world`.
+    """
+
+    residual: eqx.Module
+    pose: Pose
+    skeleton: Skeleton = eqx.field(static=True)
+    width: float = eqx.field(static=True)
+    interp: str = eqx.field(static=True, default="sclerp")
+
+    def __init__(self, residual, skeleton: Skeleton, pose: Pose | None = None, width: float = 0.05,
+                 interp: str = "sclerp", dtype=jnp.float32):
+        if not width > 0:
+            raise ValueError(f"width must be positive, got {width}")
+        self.residual = residual
+        self.skeleton = skeleton
+        self.pose = rest_pose(skeleton, dtype) if pose is None else pose
+        self.width = float(width)
+        self.interp = interp
+
+    def _motion(self, t):
+        """(heads, tails, c, Ω, ċ) of every bone at time t: its posed segment and its velocity."""
+        r, c, dr, dc = bone_velocities(self.skeleton, self.pose, t, self.interp)
+        bones = np.asarray(self.skeleton.bones)
+        rest = jnp.asarray(self.skeleton.positions, r.dtype)
+        heads = jnp.einsum("bij,bj->bi", r, rest[bones[:, 0]]) + c
+        tails = jnp.einsum("bij,bj->bi", r, rest[bones[:, 1]]) + c
+        return heads, tails, c, jnp.einsum("bij,bkj->bik", dr, r), dc  # Ω = Ṙ Rᵀ
+
+    def weights(self, x: Float[Array, "N 3"], t: Float[Array, ""] | float) -> Float[Array, "N B"]:
+        """Bone weights w_b(x, t) of points x at time t (rows sum to 1)."""
+        heads, tails, *_ = self._motion(t)
+        return skinning_weights(x, heads, tails, self.width)
+
+    def skeleton_velocity(self, x: Float[Array, "N 3"], t: Float[Array, ""] | float) -> Float[Array, "N 3"]:
+        """The articulated part Σ_b w_b ξ_b(x) at points x (N, 3) and time t."""
+        return _blend(x, self._motion(t), self.width)
+
+    def __call__(self, x: Float[Array, "N 3"], t: Float[Array, ""] | float) -> Float[Array, "N 3"]:
+        """Velocities at points x (N, 3) and time t (scalar)."""
+        return self.skeleton_velocity(x, t) + self.residual(x, t)
+
+    def on_grid(self, n_times: int, dtype=None) -> "_GridSkinnedField":
+        """The same field for the integrator's grid t_k = k/(T−1): the bones' motions at the T grid
+        times are computed once (one batched forward kinematics) instead of at every evaluation."""
+        times = time_grid(n_times, dtype or self.pose.rotations.dtype)
+        return _GridSkinnedField(self.residual, jax.vmap(self._motion)(times), self.width, n_times)
+
+
+def _blend(x, motion, width):
+    heads, tails, c, omega, dc = motion
+    w = skinning_weights(x, heads, tails, width).astype(x.dtype)  # (N, B)
+    # Σ_b w_b (Ω_b x + k_b), k_b = ċ_b − Ω_b c_b, as two matrix products
+    k = (dc - jnp.einsum("bij,bj->bi", omega, c)).astype(x.dtype)
+    wx = (w[:, :, None] * x[:, None, :]).reshape(x.shape[0], -1)  # (N, 3B)
+    return wx @ jnp.swapaxes(omega, 1, 2).reshape(-1, 3).astype(x.dtype) + w @ k
+
+
+class _GridSkinnedField(eqx.Module):
+    """A :class:`SkinnedField` whose bone motions are tabulated at t_k = k/(T−1); called at a grid
+    time (the integrator only evaluates there), it looks the motions up."""
+
+    residual: eqx.Module
+    motion: tuple
+    width: float = eqx.field(static=True)
+    n_times: int = eqx.field(static=True)
+
+    def __call__(self, x, t):
+        k = jnp.clip(jnp.round(jnp.asarray(t) * (self.n_times - 1)), 0, self.n_times - 1).astype(jnp.int32)
+        return _blend(x, tuple(m[k] for m in self.motion), self.width) + self.residual(x, t)

@@ -1,0 +1,120 @@
+"""Skeleton-driven flow field (ncflow.flow.skinning): blended rigid bone velocities + a Flow-Net."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from ncflow.config import apply_overrides, preset
+from ncflow.errors import InputError
+from ncflow.flow import SkinnedField, bone_velocities, flow_points, make_flow_field, skinning_weights, time_grid
+from ncflow.skeleton import Skeleton, rigid_reference
+from ncflow.skeleton.dualquat import quat_from_rotvec
+from ncflow.skeleton.kinematics import Pose, bone_motions, move_bone_points, rest_pose
+
+# a bent chain with a side branch: 4 bones of length 1 (and 0.8)
+POSITIONS = np.array([[0, 0, 0], [0, 0, 1.0], [0, 0, 2.0], [0, 0.8, 2.0], [1.0, 0, 1.0]])
+PARENTS = np.array([-1, 0, 1, 2, 1])
+
+
+def _skeleton():
+    return Skeleton.from_arrays(POSITIONS, PARENTS)
+
+
+def _pose(skel):
+    rot = jnp.stack([quat_from_rotvec(jnp.asarray(v, jnp.float64)) for v in
+                     [[0.3, 0, 0], [0, 1.2, 0], [0.0, 0, 0.9], [0, 0, 0], [0, 0, 0]]])
+    return Pose(rot, jnp.asarray([0.1, 0.2, -0.1]))
+
+
+def _residual(alpha=0.0):
+    return make_flow_field(jax.random.key(0), width=8, depth=1, alpha=alpha, dtype=jnp.float64)
+
+
+def test_weights_partition_unity_and_pick_the_nearest_bone():
+    skel = _skeleton()
+    heads = jnp.asarray(POSITIONS[skel.bones[:, 0]])
+    tails = jnp.asarray(POSITIONS[skel.bones[:, 1]])
+    x = jnp.asarray(np.random.default_rng(0).normal(size=(50, 3)))
+    w = skinning_weights(x, heads, tails, 0.05)
+    np.testing.assert_allclose(np.sum(w, 1), 1.0, rtol=1e-12)
+    # brute force: softmax of -distance/width, distance to the segment by dense sampling
+    s = np.linspace(0, 1, 20001)
+    pts = heads[:, None, :] + s[None, :, None] * (tails - heads)[:, None, :]  # (B, S, 3)
+    d = np.min(np.linalg.norm(np.asarray(x)[:, None, None, :] - np.asarray(pts)[None], axis=-1), axis=-1)
+    ref = np.exp(-(d - d.min(1, keepdims=True)) / 0.05)
+    np.testing.assert_allclose(np.asarray(w), ref / ref.sum(1, keepdims=True), atol=2e-3)
+    # the middle of each bone's axis belongs to that bone: its neighbours are >= 0.4 away, weight <= e^-8
+    mid = 0.5 * (heads + tails)
+    np.testing.assert_allclose(np.asarray(skinning_weights(mid, heads, tails, 0.05)), np.eye(skel.n_bones), atol=4e-4)
+
+
+def test_bone_velocities_are_the_time_derivative_of_the_bone_motions():
+    skel, pose = _skeleton(), _pose(_skeleton())
+    t = 0.37
+    r, c, dr, dc = bone_velocities(skel, pose, t)
+    p = jnp.asarray(np.random.default_rng(1).normal(size=(skel.n_bones, 3, 3)))  # 3 rest points per bone
+
+    def at(s):
+        return move_bone_points(bone_motions(skel, pose, s), p)
+
+    x, dx = jax.jvp(at, (jnp.asarray(t),), (jnp.asarray(1.0),))  # autodiff reference
+    np.testing.assert_allclose(np.asarray(jnp.einsum("bij,bnj->bni", r, p) + c[:, None]), np.asarray(x), atol=1e-12)
+    v = jnp.einsum("bij,bkj,bnk->bni", dr, r, x - c[:, None]) + dc[:, None]
+    np.testing.assert_allclose(np.asarray(v), np.asarray(dx), atol=1e-5)
+
+
+def test_rest_pose_gives_the_residual_field():
+    skel = _skeleton()
+    res = _residual(alpha=0.3)
+    field = SkinnedField(res, skel, width=0.05, dtype=jnp.float64)
+    x = jnp.asarray(np.random.default_rng(2).normal(size=(40, 3)))
+    for t in (0.0, 0.4, 1.0):
+        np.testing.assert_allclose(np.asarray(field(x, t)), np.asarray(res(x, t)), atol=1e-14)
+
+
+@pytest.mark.parametrize("interp", ["sclerp", "slerp"])
+def test_points_near_a_bone_axis_move_rigidly_with_it(interp):
+    skel = _skeleton()
+    pose = _pose(skel)
+    field = SkinnedField(_residual(), skel, pose, width=0.02, interp=interp, dtype=jnp.float64)
+    # points on the 30 %-70 % section of each bone, up to 0.05 from the axis
+    rng = np.random.default_rng(3)
+    a, b = POSITIONS[skel.bones[:, 0]], POSITIONS[skel.bones[:, 1]]
+    z = rng.uniform(0.3, 0.7, size=(skel.n_bones, 12, 1))
+    pts = a[:, None] + z * (b - a)[:, None] + 0.05 * rng.uniform(-1, 1, size=(skel.n_bones, 12, 3)) / np.sqrt(3)
+    errors = []
+    for n_times in (10, 20, 40):
+        xs = flow_points(field, jnp.asarray(pts.reshape(-1, 3)), n_times).reshape(n_times, *pts.shape)
+        ref = rigid_reference(skel, pose, jnp.asarray(pts), time_grid(n_times, jnp.float64), interp)
+        errors.append(float(jnp.max(jnp.linalg.norm(xs - ref, axis=-1))))
+    # the only error left is the integrator's (second order): it falls ~4x per halving of h
+    assert errors[0] < 0.02, errors
+    assert errors[1] < errors[0] / 3 and errors[2] < errors[1] / 3, errors
+
+
+def test_pose_gradient_is_finite_at_rest_and_moves_the_points():
+    skel = _skeleton()
+    pts = jnp.asarray(np.random.default_rng(4).normal(scale=0.3, size=(30, 3)) + [0, 0, 1.5])
+    goal = pts + jnp.asarray([0.1, 0.0, 0.0])
+
+    def loss(pose):
+        f = SkinnedField(_residual(), skel, pose, width=0.05, dtype=jnp.float64)
+        return jnp.sum((flow_points(f, pts, 10)[-1] - goal) ** 2)
+
+    grad = jax.grad(loss)(rest_pose(skel, jnp.float64))
+    assert all(bool(jnp.all(jnp.isfinite(g))) for g in jax.tree_util.tree_leaves(grad))
+    # a pure x-shift is explained by the root translation: its gradient is -2 Σ 0.1 = -6 along x
+    np.testing.assert_allclose(np.asarray(grad.translation), [-6.0, 0.0, 0.0], atol=1e-9)
+
+
+def test_configuration_of_the_skinned_field():
+    assert preset("fast").flow.skinning and not preset("paper").flow.skinning
+    with pytest.raises(InputError, match="div_free needs flow.skinning=false"):
+        apply_overrides(preset("fast"), ["flow.div_free=true"])
+    cfg = apply_overrides(preset("fast"), ["flow.div_free=true", "flow.skinning=false"])
+    assert cfg.flow.div_free and not cfg.flow.skinning
+    with pytest.raises(InputError, match="skinning_width"):
+        apply_overrides(preset("fast"), ["flow.skinning_width=0"])
+    with pytest.raises(ValueError):
+        SkinnedField(_residual(), _skeleton(), width=0.0)
