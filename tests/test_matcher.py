@@ -69,21 +69,27 @@ def test_correspondence_beats_nearest_neighbour_of_unaligned_shapes(pair, mdmm_r
 
 def test_mdmm_meets_tolerance_and_soft_mode_does_not(pair, mdmm_result):
     src, tgt, skel, *_ = pair
-    c = mdmm_result.metrics["constraints"]
+    # The capsule is bent smoothly, not at a hinge, so its ground truth is not rigid around the
+    # bones and the constraints must fight the match: a test of the MDMM machinery itself, run
+    # with the paper's field (the skeleton-driven field would carry most of the bend).
+    paper_field = {"flow.skinning": "false"}
+    c = match(src, tgt, skel, small_config(**paper_field), quiet=True).metrics["constraints"]
     eps = c["eps"]
     g_mdmm = max(c["max_g_endpoint"], c["max_g_trajectory"])
     # the soft weight was chosen where the soft baseline matched this pair about as well as MDMM
     # (mean error to the analytic bend 0.060 vs 0.056 when chosen); a stiffer weight trades
     # matching for rigidity
-    soft = match(src, tgt, skel, small_config(**{"constraints.mode": "soft", "constraints.soft_weight": 0.001}), quiet=True)
+    soft = match(src, tgt, skel, small_config(**paper_field, **{"constraints.mode": "soft", "constraints.soft_weight": 0.001}), quiet=True)
     cs = soft.metrics["constraints"]
     g_soft = max(cs["max_g_endpoint"], cs["max_g_trajectory"])
     # measured on this short run (150 steps; g from 200 fresh samples per bone, pose refitted with
-    # the final multiplier weights): MDMM 0.99 eps, soft 4.2 eps. The target is g <= eps; the
-    # assertion leaves 20 % for platform-dependent float differences, and asserts a clear gap to
-    # the soft baseline.
-    assert g_mdmm <= 1.2 * eps, g_mdmm / eps
+    # the final multiplier weights; MDMM aiming at 0.7 eps): MDMM 0.78 eps, soft 3.7 eps
+    assert g_mdmm <= eps, g_mdmm / eps
     assert g_soft > 2.5 * g_mdmm, (g_soft / eps, g_mdmm / eps)
+    # the default (skeleton-driven field) on the same pair: measured 1.14 eps, the smooth bend's
+    # non-rigidity shared between the pose and the network
+    d = mdmm_result.metrics["constraints"]
+    assert max(d["max_g_endpoint"], d["max_g_trajectory"]) <= 1.5 * eps
 
 
 def test_frames_start_at_source_and_field_moves_other_points(pair, mdmm_result):

@@ -118,3 +118,33 @@ def test_configuration_of_the_skinned_field():
         apply_overrides(preset("fast"), ["flow.skinning_width=0"])
     with pytest.raises(ValueError):
         SkinnedField(_residual(), _skeleton(), width=0.0)
+
+
+def test_div_free_switch_turns_the_skinned_field_off():
+    import argparse
+
+    from ncflow.cli.match import add_config_arguments, config_from_args
+
+    p = argparse.ArgumentParser()
+    add_config_arguments(p)
+    assert config_from_args(p.parse_args([])).flow.skinning
+    cfg = config_from_args(p.parse_args(["--div-free"]))
+    assert cfg.flow.div_free and not cfg.flow.skinning
+
+
+def test_swing_pose_removes_the_twist_of_single_child_joints_only():
+    skel = _skeleton()  # joint 0: one child (axis z); joint 1: two children; joint 2: one child (axis y)
+    rot = jnp.stack([quat_from_rotvec(jnp.asarray(v, jnp.float64)) for v in
+                     [[0.2, 0, 0.7], [0, 0.4, 0.5], [0.3, 0.6, 0.0], [0, 0, 0.3], [0, 0, 0]]])
+    pose = Pose(rot, jnp.asarray([0.1, 0.0, 0.0]))
+    swing = SkinnedField(_residual(), skel, pose, dtype=jnp.float64).swing_pose()
+    q = np.asarray(rot)
+    expected = q.copy()
+    expected[0, 3] = 0.0  # the z part of joint 0's vector part
+    expected[2, 2] = 0.0  # the y part of joint 2's
+    np.testing.assert_allclose(np.asarray(swing.rotations), expected, atol=1e-15)
+    np.testing.assert_allclose(np.asarray(swing.translation), [0.1, 0.0, 0.0])
+    # the trained twist parameter gets no gradient through the field
+    x = jnp.asarray(np.random.default_rng(5).normal(scale=0.3, size=(20, 3)) + [0, 0, 0.5])
+    grad = jax.grad(lambda p: jnp.sum(SkinnedField(_residual(), skel, p, dtype=jnp.float64)(x, 0.5) ** 2))(pose)
+    assert abs(float(grad.rotations[0, 3])) < 1e-12 and abs(float(grad.rotations[0, 1])) > 1e-6

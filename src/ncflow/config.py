@@ -59,7 +59,9 @@ class FlowConfig:
 
     ``skinning`` adds the skeleton's blended rigid bone velocities to the Flow-Net, with the pose
     trained by the data term (:class:`ncflow.flow.SkinnedField`; not in the paper, on in ``fast``);
-    ``skinning_width`` is the width τ of its bone weights as a fraction of the median bone length.
+    ``skinning_width`` is the width τ of its bone weights as a fraction of the median bone length;
+    ``pose_lr_scale`` multiplies the learning rate of that pose (its quaternions take sign-like
+    steps of about lr each, too slow for a 100° joint in a few hundred steps at the flow's rate).
     """
 
     width: int = 64
@@ -67,6 +69,7 @@ class FlowConfig:
     div_free: bool = False
     skinning: bool = True
     skinning_width: float = 0.05
+    pose_lr_scale: float = 5.0
     n_times: int = 10
     gso_width: int = 32
     gso_depth: int = 2
@@ -369,6 +372,7 @@ def validate_config(config: Config) -> Config:
         (config.flow.depth >= 1, "flow.depth must be at least 1"),
         (config.flow.n_times >= 2, "flow.n_times must be at least 2"),
         (config.flow.skinning_width > 0, "flow.skinning_width must be positive"),
+        (config.flow.pose_lr_scale >= 0, "flow.pose_lr_scale must be non-negative"),
         (not (config.flow.skinning and config.flow.div_free),
          "flow.div_free needs flow.skinning=false (blended bone velocities are not divergence-free)"),
         (config.sampling.bone_samples >= 5, "sampling.bone_samples must be at least 5"),

@@ -553,6 +553,9 @@ class Matcher:
             )
             updates, opt_state = optimizer.update(grads, opt_state, eqx.filter(params, eqx.is_inexact_array))
             updates = jax.tree_util.tree_map(lambda u: lr * u, updates)
+            if isinstance(params.flow, SkinnedField):
+                updates = eqx.tree_at(lambda u: u.flow.pose, updates,
+                                      replace_fn=lambda p: jax.tree_util.tree_map(lambda a: cfg.flow.pose_lr_scale * a, p))
             params = eqx.apply_updates(params, updates)
             if c.mode == "mdmm":
                 g = jnp.stack([aux["g_ep"], aux["g_tr"]])

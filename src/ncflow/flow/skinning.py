@@ -5,7 +5,7 @@
 where R_θ is a Flow-Net (:class:`~ncflow.flow.FlowField`, the paper's Eq. 12 field, here the
 residual), ξ_b(t)(x) = Ω_b(t)(x − c_b(t)) + ċ_b(t) the velocity field of bone b's rigid motion
 M_b(t) = (R_b(t), c_b(t)) from rest to the pose (:func:`ncflow.skeleton.bone_motions`, ScLERP by
-default; Ω_b = Ṙ_b R_bᵀ), and w_b(x, t) = softmax_b(−d_b(x, t)/τ) soft assignment weights
+default; Ω_b = Ṙ_b R_bᵀ; joints with one child bone swing without twist, :meth:`SkinnedField.swing_pose`), and w_b(x, t) = softmax_b(−d_b(x, t)/τ) soft assignment weights
 from the distance d_b of x to bone b's segment posed at time t. A point that stays near the
 middle of a bone is carried by that bone's rigid motion exactly (up to the integrator's error);
 the weights blend neighbouring bones in a band of width ~τ around each joint, where the
@@ -99,9 +99,28 @@ class SkinnedField(eqx.Module):
         self.width = float(width)
         self.interp = interp
 
+    def swing_pose(self) -> Pose:
+        """The pose the bones move by: the trained pose with the twist of every joint that has
+        exactly one child bone removed (its rotation's vector part projected off the bone's rest
+        axis). Twist about a nearly round limb (a finger, a capsule) barely shows in the data
+        term, and a trained twist drifts with the sign-like optimiser steps (a spin of a bone and
+        an opposite turn of its child's bending axis look alike); the Flow-Net carries whatever
+        twist the shapes need, and the fitted output skeleton keeps it."""
+        parents = np.asarray(self.skeleton.parents)
+        axes = np.zeros((self.skeleton.n_joints, 3))
+        for j in range(self.skeleton.n_joints):
+            children = np.flatnonzero(parents == j)
+            if children.size == 1:
+                d = self.skeleton.positions[children[0]] - self.skeleton.positions[j]
+                axes[j] = d / np.linalg.norm(d)
+        q = self.pose.rotations
+        a = jnp.asarray(axes, q.dtype)
+        v = q[:, 1:] - jnp.sum(q[:, 1:] * a, -1, keepdims=True) * a
+        return Pose(jnp.concatenate([q[:, :1], v], -1), self.pose.translation)
+
     def _motion(self, t):
         """(heads, tails, c, Ω, ċ) of every bone at time t: its posed segment and its velocity."""
-        r, c, dr, dc = bone_velocities(self.skeleton, self.pose, t, self.interp)
+        r, c, dr, dc = bone_velocities(self.skeleton, self.swing_pose(), t, self.interp)
         bones = np.asarray(self.skeleton.bones)
         rest = jnp.asarray(self.skeleton.positions, r.dtype)
         heads = jnp.einsum("bij,bj->bi", r, rest[bones[:, 0]]) + c
