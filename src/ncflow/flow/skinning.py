@@ -5,8 +5,9 @@
 where R_θ is a Flow-Net (:class:`~ncflow.flow.FlowField`, the paper's Eq. 12 field, here the
 residual), ξ_b(t)(x) = Ω_b(t)(x − c_b(t)) + ċ_b(t) the velocity field of bone b's rigid motion
 M_b(t) = (R_b(t), c_b(t)) from rest to the pose (:func:`ncflow.skeleton.bone_motions`, ScLERP by
-default; Ω_b = Ṙ_b R_bᵀ; joints with one child bone swing without twist, :meth:`SkinnedField.swing_pose`), and w_b(x, t) = softmax_b(−d_b(x, t)/τ) soft assignment weights
-from the distance d_b of x to bone b's segment posed at time t. A point that stays near the
+default; Ω_b = Ṙ_b R_bᵀ; joints with one child bone swing without twist,
+:meth:`SkinnedField.swing_pose`), and w_b(x, t) = softmax_b(−d_b(x, t)/τ) soft assignment
+weights from the distance d_b of x to bone b's segment posed at time t. A point that stays near the
 middle of a bone is carried by that bone's rigid motion exactly (up to the integrator's error);
 the weights blend neighbouring bones in a band of width ~τ around each joint, where the
 relative motion of the two bones is small. The pose (joint rotations and root translation,
@@ -31,9 +32,9 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..skeleton import Skeleton
-from .integrate import time_grid
 from ..skeleton.dualquat import dq_rotation, dq_translation, quat_to_matrix
 from ..skeleton.kinematics import Pose, bone_motions, rest_pose
+from .integrate import time_grid
 
 __all__ = ["SkinnedField", "skinning_weights", "bone_velocities"]
 
