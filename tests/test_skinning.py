@@ -71,6 +71,9 @@ def test_rest_pose_gives_the_residual_field():
     x = jnp.asarray(np.random.default_rng(2).normal(size=(40, 3)))
     for t in (0.0, 0.4, 1.0):
         np.testing.assert_allclose(np.asarray(field(x, t)), np.asarray(res(x, t)), atol=1e-14)
+    # and the weights are those of the rest skeleton at any time
+    rest = skinning_weights(x, jnp.asarray(POSITIONS[skel.bones[:, 0]]), jnp.asarray(POSITIONS[skel.bones[:, 1]]), 0.05)
+    np.testing.assert_allclose(np.asarray(field.weights(x, 0.7)), np.asarray(rest), atol=1e-12)
 
 
 @pytest.mark.parametrize("interp", ["sclerp", "slerp"])
