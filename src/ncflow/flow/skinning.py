@@ -107,13 +107,11 @@ class SkinnedField(eqx.Module):
         term, and a trained twist drifts with the sign-like optimiser steps (a spin of a bone and
         an opposite turn of its child's bending axis look alike); the Flow-Net carries whatever
         twist the shapes need, and the fitted output skeleton keeps it."""
-        parents = np.asarray(self.skeleton.parents)
+        par = np.asarray(self.skeleton.parents)[1:]  # parent of each bone's end joint
+        single = np.bincount(par, minlength=self.skeleton.n_joints)[par] == 1
+        off = np.asarray(self.skeleton.offsets)[1:][single]
         axes = np.zeros((self.skeleton.n_joints, 3))
-        for j in range(self.skeleton.n_joints):
-            children = np.flatnonzero(parents == j)
-            if children.size == 1:
-                d = self.skeleton.positions[children[0]] - self.skeleton.positions[j]
-                axes[j] = d / np.linalg.norm(d)
+        axes[par[single]] = off / np.linalg.norm(off, axis=1, keepdims=True)
         q = self.pose.rotations
         a = jnp.asarray(axes, q.dtype)
         v = q[:, 1:] - jnp.sum(q[:, 1:] * a, -1, keepdims=True) * a
