@@ -74,7 +74,9 @@ def main() -> None:
             print(f"| {k} | {skel.bones[k, 0]}→{skel.bones[k, 1]} | {r['points']} | {r['g'] / args.eps:.2f} |")
         g = np.array([r["g"] for r in rows]) / args.eps
         ok = np.isfinite(g)
-        print(f"\n{name}: max {np.nanmax(g):.2f}, median {np.nanmedian(g):.2f}; {int(np.sum(g[ok] > 1))} of {int(ok.sum())} bones above eps")
+        print(
+            f"\n{name}: max {np.nanmax(g):.2f}, median {np.nanmedian(g):.2f}; {int(np.sum(g[ok] > 1))} of {int(ok.sum())} bones above eps"
+        )
 
 
 if __name__ == "__main__":

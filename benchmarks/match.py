@@ -46,7 +46,9 @@ def mano_pair():
     parents[0] = -1
     tips, tip_parents = [320, 443, 672, 555, 744], [3, 6, 9, 12, 15]
     skel = Skeleton.from_arrays(
-        np.concatenate([joints, src.vertices[tips]]), np.concatenate([parents, tip_parents]), name="mano J_regressor + tips"
+        np.concatenate([joints, src.vertices[tips]]),
+        np.concatenate([parents, tip_parents]),
+        name="mano J_regressor + tips",
     )
     return src, tgt, skel, load_ground_truth("identity", src, tgt)
 
@@ -63,8 +65,15 @@ def run(name: str, cfg) -> dict:
     result = Matcher(src, tgt, skel, cfg, quiet=True).run()
     wall = time.perf_counter() - t0
     ev = evaluate_correspondence(
-        src, tgt, result.maps["map_face"], result.maps["map_bary"], gt.face, gt.bary,
-        deformed_vertices=result.deformed_source, frames=result.frames, gt_index=gt.target_index,
+        src,
+        tgt,
+        result.maps["map_face"],
+        result.maps["map_bary"],
+        gt.face,
+        gt.bary,
+        deformed_vertices=result.deformed_source,
+        frames=result.frames,
+        gt_index=gt.target_index,
     )["summary"]
     c = result.metrics["constraints"]
     return {
@@ -104,7 +113,9 @@ def main() -> None:
         rows.append(run(name, cfg))
         print(json.dumps(rows[-1]), flush=True)
     print(f"\npreset {args.preset}, seed {args.seed}, overrides {args.set or 'none'}\n")
-    print("| pair | V src / tgt | bones | steps | wall [s] | s/step | geodesic mean | geodesic AUC | Chamfer AUC | conformal AUC | max g/ε | bones ≤ ε |")
+    print(
+        "| pair | V src / tgt | bones | steps | wall [s] | s/step | geodesic mean | geodesic AUC | Chamfer AUC | conformal AUC | max g/ε | bones ≤ ε |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         print(

@@ -51,8 +51,11 @@ def _compress(target_res: int, m: int, sigma: float, path: str) -> dict:
     y, rep = compress_normal_cycle(normal_cycle(jnp.asarray(vt, jnp.float32), tt), m, sigma, seed=0)
     secs = time.perf_counter() - t0
     np.savez(path, centers=np.asarray(y.centers), weights=np.asarray(y.weights))
-    return {"compress_seconds": secs, "relative_error": rep.relative_error,
-            "compress_peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
+    return {
+        "compress_seconds": secs,
+        "relative_error": rep.relative_error,
+        "compress_peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+    }
 
 
 def _case(target_res: int, source_res: int, m: int, sigma: float, repeats: int, path: str | None) -> dict:
@@ -114,8 +117,14 @@ def main() -> None:
         t, s, m = (int(x) for x in args._case.split(","))
         print(json.dumps(_case(t, s, m, args.sigma, args.repeats, args._path)))
         return
-    settings = [("raw", None, 0), ("tgt->5k", None, 5000), ("tgt->10k", None, 10000),
-                ("src7k raw", WORKING, 0), ("src7k tgt->5k", WORKING, 5000), ("src7k tgt->10k", WORKING, 10000)]
+    settings = [
+        ("raw", None, 0),
+        ("tgt->5k", None, 5000),
+        ("tgt->10k", None, 10000),
+        ("src7k raw", WORKING, 0),
+        ("src7k tgt->5k", WORKING, 5000),
+        ("src7k tgt->10k", WORKING, 10000),
+    ]
     sizes = args.sizes.split(",")
     rows = []
     tmp = tempfile.mkdtemp()
@@ -144,7 +153,9 @@ def main() -> None:
             print(label, size, row[size], file=sys.stderr, flush=True)
         rows.append(row)
     print(f"\nNC loss value+grad, float32, sigma={args.sigma}; time [s] / peak RSS [MB] (per fresh process)\n")
-    head = "| setting | " + " | ".join(f"{s} (target {rows[0][s].get('target_points', '?')} edges)" for s in sizes) + " |"
+    head = (
+        "| setting | " + " | ".join(f"{s} (target {rows[0][s].get('target_points', '?')} edges)" for s in sizes) + " |"
+    )
     print(head)
     print("|" + "---|" * (len(sizes) + 1))
     for row in rows:
@@ -158,7 +169,10 @@ def main() -> None:
         cells = []
         for s in sizes:
             r = compressed[s, m][1]
-            cells.append(r.get("error") or f"{s}: {r['compress_seconds']:.1f} s / {r['compress_peak_rss_mb']:.0f} MB / {r['relative_error']:.1e}")
+            cells.append(
+                r.get("error")
+                or f"{s}: {r['compress_seconds']:.1f} s / {r['compress_peak_rss_mb']:.0f} MB / {r['relative_error']:.1e}"
+            )
         print(f"  m={m}: " + ", ".join(cells))
 
 

@@ -20,10 +20,28 @@ from ncflow.skeleton import Skeleton
 
 # a tiny configuration: one data term (one compiled step), small nets, few samples, 20 steps
 TINY = [
-    "--steps", "20", "--frames", "3", "--metric", "varifold",
-    "--set", "flow.width=16", "--set", "flow.depth=2", "--set", "flow.gso_width=8", "--set", "flow.gso_depth=1",
-    "--set", "sampling.bone_samples=8", "--set", "sampling.tissue_samples=32", "--set", "sampling.surface_edges=128",
-    "--set", "compress=500",
+    "--steps",
+    "20",
+    "--frames",
+    "3",
+    "--metric",
+    "varifold",
+    "--set",
+    "flow.width=16",
+    "--set",
+    "flow.depth=2",
+    "--set",
+    "flow.gso_width=8",
+    "--set",
+    "flow.gso_depth=1",
+    "--set",
+    "sampling.bone_samples=8",
+    "--set",
+    "sampling.tissue_samples=32",
+    "--set",
+    "sampling.surface_edges=128",
+    "--set",
+    "compress=500",
 ]
 
 
@@ -52,9 +70,7 @@ def pairs_csv(tmp_path_factory):
     source = Mesh(vs, fs, "capsule")
     skel = Skeleton.from_arrays(np.array([[0, 0, -1.6], [0, 0, 0.0], [0, 0, 1.6]]), np.array([-1, 0, 1]))
     gt = ground_truth_from_vertex_map(np.arange(len(vs)), source, len(vs))
-    pairs = [
-        Pair(f"bend_{a}", source, Mesh(bend(vs, a), fs, f"bend_{a}"), skel, gt, "capsule") for a in (50, 80)
-    ]
+    pairs = [Pair(f"bend_{a}", source, Mesh(bend(vs, a), fs, f"bend_{a}"), skel, gt, "capsule") for a in (50, 80)]
     return write_pairs(pairs, tmp_path_factory.mktemp("pairs"))
 
 
@@ -129,7 +145,9 @@ def test_benchmark_interrupted_then_resumed(pairs_csv, tmp_path, monkeypatch, ca
     assert (summary["method"], summary["dataset"], summary["n"], summary["n_failed"]) == ("ncflow", "capsule", 2, 0)
     assert summary["geodesic_auc"]["mean"] == pytest.approx(np.mean(aucs))
     assert summary["geodesic_auc"]["std"] == pytest.approx(np.std(aucs, ddof=1))
-    assert summary["max_bone_violation_ratio"]["max"] == pytest.approx(max(r["max_bone_violation_ratio"] for r in rows.values()))
+    assert summary["max_bone_violation_ratio"]["max"] == pytest.approx(
+        max(r["max_bone_violation_ratio"] for r in rows.values())
+    )
     md = (out / "report.md").read_text()
     assert "## capsule" in md and "| ncflow | 2 |" in md and "bend_50" in md and "bend_80" in md
     assert f"{np.mean(aucs):.3f} ± {np.std(aucs, ddof=1):.3f}" in md
@@ -148,7 +166,10 @@ def test_benchmark_interrupted_then_resumed(pairs_csv, tmp_path, monkeypatch, ca
         ("name,source,target,skeleton,gt\nx,nope.ply,b.ply,s.tgf,identity\n", "line 2: source file not found"),
         ("name,source,target,skeleton,gt\n", "no pairs listed"),
         ("name,source,target,skeleton,gt,gt_format\nx,s.tgf,s.tgf,s.tgf,identity,weird\n", "unknown gt_format 'weird'"),
-        ("name,source,target,skeleton,gt\nx,s.tgf,s.tgf,s.tgf,identity\nx,s.tgf,s.tgf,s.tgf,identity\n", "duplicate pair name"),
+        (
+            "name,source,target,skeleton,gt\nx,s.tgf,s.tgf,s.tgf,identity\nx,s.tgf,s.tgf,s.tgf,identity\n",
+            "duplicate pair name",
+        ),
     ],
 )
 def test_bad_csv_one_line_error_before_anything_runs(tmp_path, capsys, monkeypatch, content, message):
@@ -166,9 +187,7 @@ def test_bad_csv_one_line_error_before_anything_runs(tmp_path, capsys, monkeypat
 def test_ablation_methods_are_the_table_1_rows(capsys):
     base = preset("fast")
     methods = bench.benchmark_methods(base, ablations=True)
-    got = {
-        m.label: ({p.metric for p in m.config.phases}, m.config.interp, m.config.constraints.mode) for m in methods
-    }
+    got = {m.label: ({p.metric for p in m.config.phases}, m.config.interp, m.config.constraints.mode) for m in methods}
     assert got == {
         "Var+SLERP+soft": ({"varifold"}, "slerp", "soft"),
         "Var+DQ": ({"varifold"}, "sclerp", "soft"),
@@ -185,16 +204,34 @@ def test_ablation_methods_are_the_table_1_rows(capsys):
 
 def test_aggregation_per_method_and_dataset_and_bands():
     def row(method, dataset, g, bone):
-        return {"method": method, "dataset": dataset, "status": "ok", "geodesic_auc": g, "chamfer_auc": 0.5,
-                "conformal_auc": float("nan"), "geodesic_mean": 0.1, "chamfer_mean": 0.2, "conformal_mean": 0.3,
-                "max_bone_violation_ratio": bone, "match_seconds": 1.0, "evaluate_seconds": 0.5, "wall_seconds": 1.5}
+        return {
+            "method": method,
+            "dataset": dataset,
+            "status": "ok",
+            "geodesic_auc": g,
+            "chamfer_auc": 0.5,
+            "conformal_auc": float("nan"),
+            "geodesic_mean": 0.1,
+            "chamfer_mean": 0.2,
+            "conformal_mean": 0.3,
+            "max_bone_violation_ratio": bone,
+            "match_seconds": 1.0,
+            "evaluate_seconds": 0.5,
+            "wall_seconds": 1.5,
+        }
 
-    rows = [row("a", "hand", 0.9, 1.0), row("a", "hand", 0.7, 3.0), row("a", "body", 0.5, 2.0),
-            {"method": "a", "dataset": "body", "status": "failed"}]
+    rows = [
+        row("a", "hand", 0.9, 1.0),
+        row("a", "hand", 0.7, 3.0),
+        row("a", "body", 0.5, 2.0),
+        {"method": "a", "dataset": "body", "status": "failed"},
+    ]
     out = {(e["method"], e["dataset"]): e for e in aggregate_rows(rows, ["a"])}
     assert set(out) == {("a", "body"), ("a", "hand"), ("a", "all")}
     hand, body, every = out[("a", "hand")], out[("a", "body")], out[("a", "all")]
-    assert hand["geodesic_auc"]["mean"] == pytest.approx(0.8) and hand["geodesic_auc"]["std"] == pytest.approx(np.sqrt(0.02))
+    assert hand["geodesic_auc"]["mean"] == pytest.approx(0.8) and hand["geodesic_auc"]["std"] == pytest.approx(
+        np.sqrt(0.02)
+    )
     assert (body["n"], body["n_failed"]) == (1, 1) and np.isnan(body["geodesic_auc"]["std"])
     assert every["n"] == 3 and every["geodesic_auc"]["mean"] == pytest.approx(0.7)
     assert every["max_bone_violation_ratio"]["max"] == 3.0 and np.isnan(every["conformal_auc"]["mean"])

@@ -10,9 +10,7 @@ from scipy.spatial.transform import Rotation
 from ncflow.skeleton import Pose, Skeleton, bone_motions, interpolate_joints, move_bone_points, sample_bones
 from ncflow.skeleton.samples import n_axis_samples
 
-POS = np.array(
-    [[0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 2.0, 0.5], [0.7, 1.5, 0.0], [1.2, 2.0, 0.1], [-0.6, -0.4, 0.2]]
-)
+POS = np.array([[0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 2.0, 0.5], [0.7, 1.5, 0.0], [1.2, 2.0, 0.1], [-0.6, -0.4, 0.2]])
 PAR = np.array([-1, 0, 1, 1, 3, 0])
 RADII = np.array([np.nan, 0.05, np.nan, 0.2, np.nan, 0.15])  # per child joint; NaN = default 0.1
 SKEL = Skeleton.from_arrays(POS, PAR, radii=RADII)

@@ -73,8 +73,12 @@ def bone_angle_at(joints, parents, j):
 def test_deterministic_per_seed(characters):
     a = characters["quadruped"]
     b = make_character("quadruped", 0)
-    for x, y in [(a.vertices, b.vertices), (a.faces, b.faces), (a.weights, b.weights),
-                 (a.skeleton.positions, b.skeleton.positions)]:
+    for x, y in [
+        (a.vertices, b.vertices),
+        (a.faces, b.faces),
+        (a.weights, b.weights),
+        (a.skeleton.positions, b.skeleton.positions),
+    ]:
         assert x.dtype == y.dtype and x.shape == y.shape and x.tobytes() == y.tobytes()
     c = make_character("quadruped", 1)
     assert c.vertices.shape != a.vertices.shape or not np.array_equal(c.vertices, a.vertices)

@@ -25,7 +25,11 @@ def test_distance_json_matches_library(pair, capsys):
     assert main(["distance", str(a), str(b), "--metric", "normal-cycles", "--sigma", "0.3", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     ma, mb = load_mesh(a), load_mesh(b)
-    ref = float(normal_cycle_distance(normal_cycle(ma.vertices, mesh_topology(ma.faces)), normal_cycle(mb.vertices, mesh_topology(mb.faces)), 0.3))
+    ref = float(
+        normal_cycle_distance(
+            normal_cycle(ma.vertices, mesh_topology(ma.faces)), normal_cycle(mb.vertices, mesh_topology(mb.faces)), 0.3
+        )
+    )
     assert out["distance"] == pytest.approx(ref, rel=1e-9)
     assert out["metric"] == "normal-cycles" and out["sigma"] == 0.3
     assert out["n_source"] > 0 and out["n_target"] > out["n_source"] and out["seconds"] > 0
@@ -39,7 +43,9 @@ def test_distance_varifold_normalized(pair, capsys):
     out = json.loads(capsys.readouterr().out)
     ma, mb = load_mesh(a), load_mesh(b)
     n = fit_normalization(ma.vertices, ma.faces)
-    ref = float(varifold_distance(varifold(n.apply(ma.vertices), ma.faces), varifold(n.apply(mb.vertices), mb.faces), 0.5, 0.7))
+    ref = float(
+        varifold_distance(varifold(n.apply(ma.vertices), ma.faces), varifold(n.apply(mb.vertices), mb.faces), 0.5, 0.7)
+    )
     assert out["distance"] == pytest.approx(ref, rel=1e-9) and out["normalized"] is True
     assert main(args) == 0
     assert "varifold distance" in capsys.readouterr().out

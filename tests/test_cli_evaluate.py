@@ -15,7 +15,13 @@ from ncflow.mesh import save_mesh
 from ncflow.shapes import capsule
 
 EPS = 3e-4
-BONE = {"bone": "root -> tip", "g_endpoint": 1e-4, "g_trajectory": 1.5e-4, "rms_distance_endpoint": 0.01, "satisfied": True}
+BONE = {
+    "bone": "root -> tip",
+    "g_endpoint": 1e-4,
+    "g_trajectory": 1.5e-4,
+    "rms_distance_endpoint": 0.01,
+    "satisfied": True,
+}
 CONSTRAINTS = {"mode": "mdmm", "eps": EPS, "max_violation_ratio": 0.5, "all_satisfied": True, "bones": [BONE]}
 
 
@@ -51,8 +57,19 @@ def case(tmp_path_factory):
 
 
 def _evaluate(d, name, *extra):
-    return main(["evaluate", str(d / name), "--source", str(d / "source.ply"), "--target", str(d / "target.ply"),
-                 "--gt", "identity", *extra])
+    return main(
+        [
+            "evaluate",
+            str(d / name),
+            "--source",
+            str(d / "source.ply"),
+            "--target",
+            str(d / "target.ply"),
+            "--gt",
+            "identity",
+            *extra,
+        ]
+    )
 
 
 def _image(path):
@@ -67,7 +84,7 @@ def _panels_differ(img) -> float:
     h, w = img.shape[:2]
     third = w // 3
     rows = slice(int(0.15 * h), h)
-    return float(np.abs(img[rows, third:2 * third, :3] - img[rows, 2 * third:3 * third, :3]).mean())
+    return float(np.abs(img[rows, third : 2 * third, :3] - img[rows, 2 * third : 3 * third, :3]).mean())
 
 
 def test_perfect_result_scores_perfectly(case, capsys):
@@ -129,8 +146,9 @@ def test_wrong_size_ground_truth_exit_2_nothing_written(case, tmp_path, capsys):
     before = sorted(p.name for p in res.iterdir())
     gt = tmp_path / "short.txt"
     gt.write_text("".join(f"{i}\n" for i in range(len(vs) - 1)))
-    rc = main(["evaluate", str(res), "--source", str(d / "source.ply"), "--target", str(d / "target.ply"),
-               "--gt", str(gt)])
+    rc = main(
+        ["evaluate", str(res), "--source", str(d / "source.ply"), "--target", str(d / "target.ply"), "--gt", str(gt)]
+    )
     assert rc == 2
     _assert_one_line_error(capsys, "short.txt", f"expected {len(vs)}", f"got {len(vs) - 1}")
     assert sorted(p.name for p in res.iterdir()) == before  # no evaluation.json, no plots, no temporary files
@@ -142,8 +160,21 @@ def test_missing_result_file_exit_2(case, tmp_path, capsys):
     shutil.copytree(d / "shifted", res)
     (res / EVALUATION_FILE).unlink()
     (res / "map_tgt_to_src.npz").unlink()
-    assert main(["evaluate", str(res), "--source", str(d / "source.ply"), "--target", str(d / "target.ply"),
-                 "--gt", "identity"]) == 2
+    assert (
+        main(
+            [
+                "evaluate",
+                str(res),
+                "--source",
+                str(d / "source.ply"),
+                "--target",
+                str(d / "target.ply"),
+                "--gt",
+                "identity",
+            ]
+        )
+        == 2
+    )
     _assert_one_line_error(capsys, "map_tgt_to_src.npz", "missing result file")
     assert not (res / EVALUATION_FILE).exists()
 
@@ -152,8 +183,22 @@ def test_wrong_source_mesh_exit_2(case, tmp_path, capsys):
     d, *_ = case
     other_v, other_f = capsule(radius=0.4, length=2.0, n_around=8, n_along=8)
     save_mesh(tmp_path / "other.ply", other_v, other_f)
-    assert main(["evaluate", str(d / "perfect"), "--source", str(tmp_path / "other.ply"), "--target",
-                 str(d / "target.ply"), "--gt", "identity", "--no-plots"]) == 2
+    assert (
+        main(
+            [
+                "evaluate",
+                str(d / "perfect"),
+                "--source",
+                str(tmp_path / "other.ply"),
+                "--target",
+                str(d / "target.ply"),
+                "--gt",
+                "identity",
+                "--no-plots",
+            ]
+        )
+        == 2
+    )
     _assert_one_line_error(capsys, "other.ply", "not the source of this result")
 
 
@@ -177,15 +222,37 @@ def test_flat_sheet_volume_change_written_as_null_and_reported(tmp_path, capsys)
     save_mesh(tmp_path / "s.ply", vs, fs)
     save_mesh(tmp_path / "t.ply", target, fs)
     maps = correspondence_maps(vs, fs, target, target, fs)
-    write_result(tmp_path / "res", deformed_source=target, source_faces=fs, maps=maps,
-                 frames=np.stack([vs, target]), frame_times=np.array([0.0, 1.0]))
-    assert main(["evaluate", str(tmp_path / "res"), "--source", str(tmp_path / "s.ply"), "--target",
-                 str(tmp_path / "t.ply"), "--gt", "identity", "--no-plots"]) == 0
+    write_result(
+        tmp_path / "res",
+        deformed_source=target,
+        source_faces=fs,
+        maps=maps,
+        frames=np.stack([vs, target]),
+        frame_times=np.array([0.0, 1.0]),
+    )
+    assert (
+        main(
+            [
+                "evaluate",
+                str(tmp_path / "res"),
+                "--source",
+                str(tmp_path / "s.ply"),
+                "--target",
+                str(tmp_path / "t.ply"),
+                "--gt",
+                "identity",
+                "--no-plots",
+            ]
+        )
+        == 0
+    )
     assert "3 non-finite value(s) written as null" in capsys.readouterr().out
     rec = _strict_loads((tmp_path / "res" / EVALUATION_FILE).read_text())
     assert rec["summary"]["volume_change"] == [None, None]
     assert rec["non_finite_as_null"] == [
-        "headline.max_abs_volume_change", "summary.volume_change[0]", "summary.volume_change[1]"
+        "headline.max_abs_volume_change",
+        "summary.volume_change[0]",
+        "summary.volume_change[1]",
     ]
     assert rec["headline"]["max_abs_volume_change"] is None and rec["headline"]["geodesic_auc"] > 1 - 1e-6
     assert rec["plots"] == {} and not any(p.suffix == ".png" for p in (tmp_path / "res").iterdir())

@@ -98,8 +98,10 @@ def test_point_transform_matches_matrix_and_sandwich(s1, s2):
     # the paper's sandwich Q (1 + ε p) Q̄ with Q̄ = (r*, −d*) (Eq. 35)
     r, d = q[:4], q[4:]
     pq = jnp.concatenate([jnp.zeros((6, 1)), jnp.asarray(p)], axis=1)
-    dual = dq.quat_mul(dq.quat_mul(r, pq), dq.quat_conj(r)) + dq.quat_mul(d, dq.quat_conj(r)) - dq.quat_mul(
-        r, dq.quat_conj(d)
+    dual = (
+        dq.quat_mul(dq.quat_mul(r, pq), dq.quat_conj(r))
+        + dq.quat_mul(d, dq.quat_conj(r))
+        - dq.quat_mul(r, dq.quat_conj(d))
     )
     np.testing.assert_allclose(dual[:, 1:], expect, atol=1e-12)
     # inverse undoes it

@@ -57,9 +57,7 @@ def _midpoint_subdivision(v: np.ndarray, f: np.ndarray):
     inv = inv.reshape(3, -1).T + v.shape[0]  # (F, 3): midpoint of edges 01, 12, 20
     a, b, c = f[:, 0], f[:, 1], f[:, 2]
     m01, m12, m20 = inv[:, 0], inv[:, 1], inv[:, 2]
-    faces = np.concatenate(
-        [np.stack(x, 1) for x in ((a, m01, m20), (b, m12, m01), (c, m20, m12), (m01, m12, m20))]
-    )
+    faces = np.concatenate([np.stack(x, 1) for x in ((a, m01, m20), (b, m12, m01), (c, m20, m12), (m01, m12, m20))])
     verts = np.concatenate([v, 0.5 * (v[uniq[:, 0]] + v[uniq[:, 1]])])
     return verts, faces, uniq
 

@@ -24,10 +24,9 @@ sparse output accessor); "cubic" (shoulder translation CUBICSPLINE).
 
 from __future__ import annotations
 
+import json
 import math
 import struct
-
-import json
 
 import numpy as np
 import pygltflib
@@ -101,7 +100,12 @@ class _Blob:
             view = self.view(array.tobytes())
         self.gltf.accessors.append(
             pygltflib.Accessor(
-                bufferView=view, byteOffset=offset, componentType=ctype, count=array.shape[0], type=atype, normalized=normalized
+                bufferView=view,
+                byteOffset=offset,
+                componentType=ctype,
+                count=array.shape[0],
+                type=atype,
+                normalized=normalized,
             )
         )
         return len(self.gltf.accessors) - 1
@@ -215,14 +219,18 @@ def _arm_gltf() -> pygltflib.GLTF2:
     step = pygltflib.Animation(
         name="step",
         samplers=[sampler([0, 1, 2], None, "STEP", out_acc=len(g.accessors) - 1)],
-        channels=[pygltflib.AnimationChannel(sampler=0, target=pygltflib.AnimationChannelTarget(node=1, path="translation"))],
+        channels=[
+            pygltflib.AnimationChannel(sampler=0, target=pygltflib.AnimationChannelTarget(node=1, path="translation"))
+        ],
     )
     # CUBICSPLINE: keys t=0: (a0, v0, b0) = (0, 0, (4,0,0)); t=2: (a1, v1, b1) = (0, (2,0,0), 0)
     cubic_values = [[0, 0, 0], [0, 0, 0], [4, 0, 0], [0, 0, 0], [2, 0, 0], [0, 0, 0]]
     cubic = pygltflib.Animation(
         name="cubic",
         samplers=[sampler([0, 2], cubic_values, "CUBICSPLINE")],
-        channels=[pygltflib.AnimationChannel(sampler=0, target=pygltflib.AnimationChannelTarget(node=1, path="translation"))],
+        channels=[
+            pygltflib.AnimationChannel(sampler=0, target=pygltflib.AnimationChannelTarget(node=1, path="translation"))
+        ],
     )
     g.animations = [bend, step, cubic]
 
@@ -286,14 +294,14 @@ def test_linear_clip_matches_analytic_pose(arm_glb, t):
     assert posed.animation == "bend" and posed.time == t
     s = _shoulder_translation_bend(t)
     r = _elbow_rotation_bend(t)
-    np.testing.assert_allclose(
-        posed.joint_positions, [ELBOW + s, SHOULDER + s, ELBOW + s + r @ [1.0, 0, 0]], atol=1e-6
-    )
+    np.testing.assert_allclose(posed.joint_positions, [ELBOW + s, SHOULDER + s, ELBOW + s + r @ [1.0, 0, 0]], atol=1e-6)
 
 
 def test_slerp_differs_from_normalised_lerp(arm_glb):
     """At t = 0.25 slerp gives 30° exactly; nlerp of (identity, 120°) would give about 27.8°."""
-    q = interpolate_keyframes(np.array([0.0, 1.0]), np.array([[0, 0, 0, 1.0], _quat(AXIS, ANGLE)]), 0.25, "LINEAR", True)
+    q = interpolate_keyframes(
+        np.array([0.0, 1.0]), np.array([[0, 0, 0, 1.0], _quat(AXIS, ANGLE)]), 0.25, "LINEAR", True
+    )
     np.testing.assert_allclose(q, _quat(AXIS, ANGLE / 4), atol=1e-12)
     nlerp = 0.75 * np.array([0, 0, 0, 1.0]) + 0.25 * np.array(_quat(AXIS, ANGLE))
     assert abs(2 * math.acos(nlerp[3] / np.linalg.norm(nlerp)) - ANGLE / 4) > 0.03
@@ -339,7 +347,9 @@ def test_ground_truth_is_consistent_between_times(arm_glb):
     for posed, t in [(a, 0.25), (b, 1.5)]:
         s, r = _shoulder_translation_bend(t), _elbow_rotation_bend(t)
         w = SHOULDER_W[:, None]
-        np.testing.assert_allclose(posed.vertices, w * (bind + s) + (1 - w) * (ELBOW + (bind - ELBOW) @ r.T + s), atol=1e-6)
+        np.testing.assert_allclose(
+            posed.vertices, w * (bind + s) + (1 - w) * (ELBOW + (bind - ELBOW) @ r.T + s), atol=1e-6
+        )
     # rigid parts move rigidly: distances within the shoulder ring and within the wrist ring are kept
     for ring in (slice(0, 4), slice(8, 12)):
         da = np.linalg.norm(a.vertices[ring, None] - a.vertices[None, ring], axis=-1)
@@ -351,7 +361,9 @@ def test_explicit_joint_rotations(arm_glb):
     q = np.tile([0.0, 0.0, 0.0, 1.0], (3, 1))
     q[0] = _quat(np.array([0, 0, 1.0]), math.pi / 2)  # elbow (skin joint 0): 90° about z
     posed = pose_gltf(arm_glb, joint_rotations=q)
-    np.testing.assert_allclose(posed.vertices, _expected(np.zeros(3), _rodrigues(np.array([0, 0, 1.0]), math.pi / 2)), atol=1e-6)
+    np.testing.assert_allclose(
+        posed.vertices, _expected(np.zeros(3), _rodrigues(np.array([0, 0, 1.0]), math.pi / 2)), atol=1e-6
+    )
     np.testing.assert_allclose(posed.joint_positions[2], [1.0, 1.0, 0.5], atol=1e-6)  # wrist
     # with a time: the rotation replaces the animated elbow rotation; the animated translation stays
     q[0] = [0, 0, 0, 2.0]  # not unit: normalised
@@ -370,7 +382,9 @@ def test_gltf_skeleton_matches_hierarchy(arm_glb):
     np.testing.assert_allclose(pos, [ELBOW, SHOULDER, WRIST], atol=1e-6)
     pos, parents, _ = gltf_skeleton(arm_glb, time=1.0, animation="bend")
     r = _rodrigues(AXIS, ANGLE)
-    np.testing.assert_allclose(pos, [ELBOW + [0, 1, 0], SHOULDER + [0, 1, 0], ELBOW + [0, 1, 0] + r @ [1.0, 0, 0]], atol=1e-6)
+    np.testing.assert_allclose(
+        pos, [ELBOW + [0, 1, 0], SHOULDER + [0, 1, 0], ELBOW + [0, 1, 0] + r @ [1.0, 0, 0]], atol=1e-6
+    )
     # skin 1 = [elbow, wrist, prop]: two joints without joint ancestor; prop is higher in the tree
     pos, parents, names = gltf_skeleton(arm_glb, skin=1)
     assert names == ["elbow", "wrist", "prop"]
@@ -409,7 +423,9 @@ def test_gltf_json_with_data_uri(tmp_path):
     path = tmp_path / "arm.gltf"
     path.write_text(g.to_json())
     posed = pose_gltf(path, time=0.25, animation="bend")
-    np.testing.assert_allclose(posed.vertices, _expected(_shoulder_translation_bend(0.25), _elbow_rotation_bend(0.25)), atol=1e-6)
+    np.testing.assert_allclose(
+        posed.vertices, _expected(_shoulder_translation_bend(0.25), _elbow_rotation_bend(0.25)), atol=1e-6
+    )
 
 
 def test_bad_files(tmp_path):
@@ -464,12 +480,17 @@ def test_cli_list(arm_glb, capsys):
 
 def test_cli_skeleton_out(arm_glb, tmp_path):
     from ncflow import skeleton
+
     mesh_out, skel_out = tmp_path / "m.ply", tmp_path / "s.json"
     assert main(["pose", str(arm_glb), "--time", "1", "--out", str(mesh_out), "--skeleton-out", str(skel_out)]) == 0
     assert mesh_out.exists() and skel_out.exists()
     skel = skeleton.load_skeleton(skel_out)
     r = _rodrigues(AXIS, ANGLE)
-    expected = {"elbow": ELBOW + [0, 1, 0], "shoulder": SHOULDER + [0, 1, 0], "wrist": ELBOW + [0, 1, 0] + r @ [1.0, 0, 0]}
+    expected = {
+        "elbow": ELBOW + [0, 1, 0],
+        "shoulder": SHOULDER + [0, 1, 0],
+        "wrist": ELBOW + [0, 1, 0] + r @ [1.0, 0, 0],
+    }
     assert sorted(skel.names) == sorted(expected)
     for j, name in enumerate(skel.names):
         np.testing.assert_allclose(skel.positions[j], expected[name], atol=1e-6)
@@ -508,12 +529,24 @@ def test_merge_zero_length_bones():
     "make_args, message",
     [
         (lambda d, glb: ["pose", str(d / "junk.glb"), "--time", "0", "--out", str(d / "o.ply")], "not a glTF 2.0 file"),
-        (lambda d, glb: ["pose", str(glb), "--time", "0", "--animation", "walk", "--out", str(d / "o.ply")], "no animation named"),
+        (
+            lambda d, glb: ["pose", str(glb), "--time", "0", "--animation", "walk", "--out", str(d / "o.ply")],
+            "no animation named",
+        ),
         (lambda d, glb: ["pose", str(glb), "--time", "nan", "--out", str(d / "o.ply")], "finite"),
         (lambda d, glb: ["pose", str(glb), "--time", "soon", "--out", str(d / "o.ply")], "number"),
         (lambda d, glb: ["pose", str(d / "mesh.obj"), "--time", "0", "--out", str(d / "o.ply")], ".glb or .gltf"),
         (
-            lambda d, glb: ["pose", str(glb), "--time", "0", "--out", str(d / "o.ply"), "--skeleton-out", str(d / "s.txt")],
+            lambda d, glb: [
+                "pose",
+                str(glb),
+                "--time",
+                "0",
+                "--out",
+                str(d / "o.ply"),
+                "--skeleton-out",
+                str(d / "s.txt"),
+            ],
             ".tgf or .json",
         ),
     ],

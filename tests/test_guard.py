@@ -28,8 +28,16 @@ def test_a_runaway_rolls_back_to_the_last_healthy_snapshot_and_halves_the_rate()
     assert verdicts[:12] == ["ok"] * 12 and verdicts[12] == "rollback"
     assert g.snapshot == ("state", 10)  # step 15 was never reached; 1.5 > 1.2 best blocks no snapshot here
     assert g.lr_scale == 0.5
-    assert g.events == [{"step": 13, "data_smoothed": 2.1, "data_best": 1.0, "violation_smoothed": 0.0,
-                         "violation_best": 0.0, "lr_scale": 0.5}]
+    assert g.events == [
+        {
+            "step": 13,
+            "data_smoothed": 2.1,
+            "data_best": 1.0,
+            "violation_smoothed": 0.0,
+            "violation_best": 0.0,
+            "lr_scale": 0.5,
+        }
+    ]
     # after two more trips in the same stage it asks to stop
     assert _feed(g, [2.5], 13) == ["rollback"]
     assert _feed(g, [2.5], 14) == ["stop"]

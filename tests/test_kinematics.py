@@ -19,9 +19,7 @@ from ncflow.skeleton import (
     rigid_reference,
 )
 
-POS = np.array(
-    [[0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 2.0, 0.5], [0.7, 1.5, 0.0], [1.2, 2.0, 0.1], [-0.6, -0.4, 0.2]]
-)
+POS = np.array([[0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 2.0, 0.5], [0.7, 1.5, 0.0], [1.2, 2.0, 0.1], [-0.6, -0.4, 0.2]])
 PAR = np.array([-1, 0, 1, 1, 3, 0])
 SKEL = Skeleton.from_arrays(POS, PAR)
 TIMES = jnp.linspace(0.0, 1.0, 11)
@@ -33,6 +31,8 @@ rigid_ref = jax.jit(rigid_reference, static_argnums=(0, 4))  # (skeleton, pose, 
 
 def fk_joints(pose):
     return joints_at(SKEL, pose, 1.0, "sclerp")
+
+
 path_sclerp = jax.jit(jax.vmap(lambda pose, t: interpolate_world(SKEL, pose, t, "sclerp"), in_axes=(None, 0)))
 path_slerp = jax.jit(jax.vmap(lambda pose, t: interpolate_world(SKEL, pose, t, "slerp"), in_axes=(None, 0)))
 

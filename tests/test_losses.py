@@ -214,6 +214,7 @@ def test_arap_zero_for_rigid_motion_with_true_rotations(small_mesh):
     eye = np.broadcast_to(np.eye(3), rotations.shape)
     wrong = arap_energy_jit(jnp.asarray(v), jnp.asarray(edges), jnp.asarray(states[1:]), jnp.asarray(eye[1:]))
     assert float(wrong) > 1e-2
+
     # a rotation predictor given as any callable (the true R(t)) goes through surface_distortion
     def oracle(x, t):
         return jnp.broadcast_to(jnp.asarray(rots)[jnp.round(t * (T - 1)).astype(int)], (x.shape[0], 3, 3))

@@ -23,10 +23,17 @@ def small_config(steps=(60, 90), **overrides):
     cfg = apply_overrides(
         preset("fast"),
         [
-            "flow.width=64", "flow.depth=3", "flow.gso_width=16", "flow.gso_depth=1",
-            "sampling.bone_samples=10", "sampling.tissue_samples=64", "sampling.surface_edges=256",
-            "compress=600", "frames=5",
-        ] + [f"{k}={v}" for k, v in overrides.items()],
+            "flow.width=64",
+            "flow.depth=3",
+            "flow.gso_width=16",
+            "flow.gso_depth=1",
+            "sampling.bone_samples=10",
+            "sampling.tissue_samples=64",
+            "sampling.surface_edges=256",
+            "compress=600",
+            "frames=5",
+        ]
+        + [f"{k}={v}" for k, v in overrides.items()],
     )
     phases = tuple(dataclasses.replace(p, steps=n) for p, n in zip(cfg.phases, steps))
     return dataclasses.replace(cfg, phases=phases)
@@ -79,7 +86,13 @@ def test_mdmm_meets_tolerance_and_soft_mode_does_not(pair, mdmm_result):
     # the soft weight was chosen where the soft baseline matched this pair about as well as MDMM
     # (mean error to the analytic bend 0.060 vs 0.056 when chosen); a stiffer weight trades
     # matching for rigidity
-    soft = match(src, tgt, skel, small_config(**paper_field, **{"constraints.mode": "soft", "constraints.soft_weight": 0.001}), quiet=True)
+    soft = match(
+        src,
+        tgt,
+        skel,
+        small_config(**paper_field, **{"constraints.mode": "soft", "constraints.soft_weight": 0.001}),
+        quiet=True,
+    )
     cs = soft.metrics["constraints"]
     g_soft = max(cs["max_g_endpoint"], cs["max_g_trajectory"])
     # measured on this short run (150 steps; g from 200 fresh samples per bone, pose refitted with
@@ -131,8 +144,24 @@ def test_cli_match_writes_contract_and_is_reproducible(tmp_path, pair, capsys):
     outs = {}
     for name, seed in [("a", 1), ("b", 1), ("c", 2)]:
         out = tmp_path / name
-        rc = main(["match", s, t, "--skeleton", k, "--out", str(out), "--config", _cli_config(tmp_path, seed),
-                   "--steps", "12", "--metric", "varifold", "--quiet"])
+        rc = main(
+            [
+                "match",
+                s,
+                t,
+                "--skeleton",
+                k,
+                "--out",
+                str(out),
+                "--config",
+                _cli_config(tmp_path, seed),
+                "--steps",
+                "12",
+                "--metric",
+                "varifold",
+                "--quiet",
+            ]
+        )
         assert rc == 0
         outs[name] = out
     res = read_result(outs["a"])

@@ -118,7 +118,10 @@ def test_kernel_sum_float32_stays_float32():
     w = jnp.asarray(rng.normal(size=(50, 2)), jnp.float32)
     val, g = jax.value_and_grad(lambda x: kernel_self_sum(x, w))(x)
     assert val.dtype == jnp.float32 and g.dtype == jnp.float32
-    ref = np.sum(np.exp(-((np.asarray(x, np.float64)[:, None] - np.asarray(x, np.float64)[None]) ** 2).sum(-1)) * (np.asarray(w, np.float64) @ np.asarray(w, np.float64).T))
+    ref = np.sum(
+        np.exp(-((np.asarray(x, np.float64)[:, None] - np.asarray(x, np.float64)[None]) ** 2).sum(-1))
+        * (np.asarray(w, np.float64) @ np.asarray(w, np.float64).T)
+    )
     assert float(val) == pytest.approx(ref, rel=1e-5)
 
 

@@ -40,8 +40,10 @@ def _np_reference(theta, n_steps, lr, wd, clip, moment):
     eps = 1e-16 if moment == "belief" else 1e-8
     theta = {k: np.array(v, dtype=float) for k, v in theta.items()}
     m = {k: np.zeros_like(v) for k, v in theta.items()}
-    s = {k: (np.zeros(v.shape[:-1] + (1,)) if moment == "vector" and v.ndim and v.shape[-1] == 3 else np.zeros_like(v))
-         for k, v in theta.items()}
+    s = {
+        k: (np.zeros(v.shape[:-1] + (1,)) if moment == "vector" and v.ndim and v.shape[-1] == 3 else np.zeros_like(v))
+        for k, v in theta.items()
+    }
     traj, fracs, clipped = [], [], []
     for t in range(1, n_steps + 1):
         g = _grad_np(theta, t - 1)
@@ -236,9 +238,18 @@ def test_piecewise_phases_restart_each_phase():
         ]
     )
     expected = {
-        0: 0.0, 50: 1.5e-3, 1999: 3e-3,  # phase 1
-        2000: 0.0, 2050: 1.5e-3, 2100: 3e-3, 3050: 1.55e-3, 3999: 1.0000198e-4,  # phase 2 (restarted)
-        4000: 0.0, 4050: 5e-5, 4999: 1e-4, 6000: 1e-4,  # phase 3 (restarted; continues after the end)
+        0: 0.0,
+        50: 1.5e-3,
+        1999: 3e-3,  # phase 1
+        2000: 0.0,
+        2050: 1.5e-3,
+        2100: 3e-3,
+        3050: 1.55e-3,
+        3999: 1.0000198e-4,  # phase 2 (restarted)
+        4000: 0.0,
+        4050: 5e-5,
+        4999: 1e-4,
+        6000: 1e-4,  # phase 3 (restarted; continues after the end)
     }
     for step, val in expected.items():
         assert float(s(step)) == pytest.approx(val, rel=1e-6, abs=1e-12), step

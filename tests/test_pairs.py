@@ -24,10 +24,10 @@ from ncflow.mesh import load_mesh, mesh_topology, validate_mesh
 from ncflow.pairs import (
     gltf_pair,
     load_mano,
+    make_pair,
     mano_finger_pose,
     mano_forward,
     mano_pair,
-    make_pair,
     retriangulate_mesh,
     write_pairs,
 )
@@ -230,9 +230,16 @@ def fake_mano_arrays():
     faces = np.stack([np.arange(nv - 2), np.arange(1, nv - 1), np.arange(2, nv)], axis=1)
     kintree = np.array([[2**32 - 1] + MANO_PARENTS[1:], list(range(16))], dtype=np.int64)
     return {
-        "v_template": v, "faces": faces, "weights": weights, "J_regressor": jreg, "kintree_table": kintree,
-        "posedirs": posedirs, "shapedirs": shapedirs, "hands_components": components,
-        "hands_mean": np.zeros(45), "hands_coeffs": coeffs,
+        "v_template": v,
+        "faces": faces,
+        "weights": weights,
+        "J_regressor": jreg,
+        "kintree_table": kintree,
+        "posedirs": posedirs,
+        "shapedirs": shapedirs,
+        "hands_components": components,
+        "hands_mean": np.zeros(45),
+        "hands_coeffs": coeffs,
     }
 
 
@@ -334,8 +341,18 @@ def test_mano_pkl_with_chumpy_objects(mano_npz, tmp_path, monkeypatch):
     monkeypatch.delitem(sys.modules, "chumpy")
     monkeypatch.delitem(sys.modules, "chumpy.ch")
     a, b = load_mano(path), load_mano(mano_npz)
-    for key in ("v_template", "faces", "weights", "J_regressor", "posedirs", "shapedirs", "hands_components",
-                "hands_mean", "hands_coeffs", "parents"):
+    for key in (
+        "v_template",
+        "faces",
+        "weights",
+        "J_regressor",
+        "posedirs",
+        "shapedirs",
+        "hands_components",
+        "hands_mean",
+        "hands_coeffs",
+        "parents",
+    ):
         np.testing.assert_array_equal(getattr(a, key), getattr(b, key))
     pa, pb = mano_pair(path, 0, 1, tip_vertices=TIPS), mano_pair(mano_npz, 0, 1, tip_vertices=TIPS)
     np.testing.assert_array_equal(pa.target.vertices, pb.target.vertices)
@@ -377,8 +394,9 @@ def write_bending_capsule(path):
             data.append(0)
         g.bufferViews.append(pygltflib.BufferView(buffer=0, byteOffset=len(data), byteLength=len(raw)))
         data.extend(raw)
-        g.accessors.append(pygltflib.Accessor(bufferView=len(g.bufferViews) - 1, componentType=ctype,
-                                              count=len(array), type=atype))
+        g.accessors.append(
+            pygltflib.Accessor(bufferView=len(g.bufferViews) - 1, componentType=ctype, count=len(array), type=atype)
+        )
         return len(g.accessors) - 1
 
     g.nodes = [
@@ -393,24 +411,42 @@ def write_bending_capsule(path):
     bind = np.array([[0, 0, -1.0], [0, 0, -1.0], [0, 0, 0.0], [0, 0, 1.0]])
     ibm = np.tile(np.eye(4), (4, 1, 1))
     ibm[:, :3, 3] = -bind
-    g.skins = [pygltflib.Skin(joints=[0, 1, 2, 3], inverseBindMatrices=accessor(
-        np.swapaxes(ibm, 1, 2).astype(np.float32).reshape(4, 16), pygltflib.FLOAT, "MAT4"))]
+    g.skins = [
+        pygltflib.Skin(
+            joints=[0, 1, 2, 3],
+            inverseBindMatrices=accessor(
+                np.swapaxes(ibm, 1, 2).astype(np.float32).reshape(4, 16), pygltflib.FLOAT, "MAT4"
+            ),
+        )
+    ]
     joints = np.tile(np.array([1, 2, 0, 0], dtype=np.uint8), (v.shape[0], 1))
     weights = np.stack([1 - w_elbow, w_elbow, 0 * z, 0 * z], axis=1).astype(np.float32)
-    g.meshes = [pygltflib.Mesh(primitives=[pygltflib.Primitive(
-        attributes=pygltflib.Attributes(
-            POSITION=accessor(v.astype(np.float32), pygltflib.FLOAT, "VEC3"),
-            JOINTS_0=accessor(joints, pygltflib.UNSIGNED_BYTE, "VEC4"),
-            WEIGHTS_0=accessor(weights, pygltflib.FLOAT, "VEC4")),
-        indices=accessor(f.astype(np.uint32).reshape(-1), pygltflib.UNSIGNED_INT, "SCALAR"))])]
+    g.meshes = [
+        pygltflib.Mesh(
+            primitives=[
+                pygltflib.Primitive(
+                    attributes=pygltflib.Attributes(
+                        POSITION=accessor(v.astype(np.float32), pygltflib.FLOAT, "VEC3"),
+                        JOINTS_0=accessor(joints, pygltflib.UNSIGNED_BYTE, "VEC4"),
+                        WEIGHTS_0=accessor(weights, pygltflib.FLOAT, "VEC4"),
+                    ),
+                    indices=accessor(f.astype(np.uint32).reshape(-1), pygltflib.UNSIGNED_INT, "SCALAR"),
+                )
+            ]
+        )
+    ]
     s = math.sin(math.pi / 4)
     times = accessor(np.array([0.0, 1.0], dtype=np.float32), pygltflib.FLOAT, "SCALAR")
     rots = accessor(np.array([[0, 0, 0, 1], [s, 0, 0, s]], dtype=np.float32), pygltflib.FLOAT, "VEC4")
-    g.animations = [pygltflib.Animation(
-        name="bend",
-        samplers=[pygltflib.AnimationSampler(input=times, output=rots, interpolation="LINEAR")],
-        channels=[pygltflib.AnimationChannel(sampler=0, target=pygltflib.AnimationChannelTarget(node=2, path="rotation"))],
-    )]
+    g.animations = [
+        pygltflib.Animation(
+            name="bend",
+            samplers=[pygltflib.AnimationSampler(input=times, output=rots, interpolation="LINEAR")],
+            channels=[
+                pygltflib.AnimationChannel(sampler=0, target=pygltflib.AnimationChannelTarget(node=2, path="rotation"))
+            ],
+        )
+    ]
     g.buffers = [pygltflib.Buffer(byteLength=len(data))]
     g.set_binary_blob(bytes(data))
     g.save_binary(str(path))

@@ -37,8 +37,9 @@ def _angle(q):
 
 
 def _fit(flowed, pts, iterations=40):
-    return fit_pose(SKEL, rest_pose(SKEL, jnp.float64), pts, flowed, TIMES, "sclerp",
-                    iterations=iterations, max_step=0.1)
+    return fit_pose(
+        SKEL, rest_pose(SKEL, jnp.float64), pts, flowed, TIMES, "sclerp", iterations=iterations, max_step=0.1
+    )
 
 
 def test_fit_recovers_an_articulated_pose_with_twist():
@@ -46,7 +47,9 @@ def test_fit_recovers_an_articulated_pose_with_twist():
     true = _twisted_pose(0.3)
     flowed = rigid_reference(SKEL, true, pts, TIMES, "sclerp")
     fitted = _fit(flowed, pts)
-    np.testing.assert_allclose(np.asarray(rigid_reference(SKEL, fitted, pts, TIMES, "sclerp")), np.asarray(flowed), atol=1e-8)
+    np.testing.assert_allclose(
+        np.asarray(rigid_reference(SKEL, fitted, pts, TIMES, "sclerp")), np.asarray(flowed), atol=1e-8
+    )
     np.testing.assert_allclose(np.asarray(fitted.translation), np.asarray(true.translation), atol=1e-8)
     for j in (0, 1, 2):  # every joint that carries a bone: the same rotation up to sign
         q, want = np.asarray(fitted.rotations[j]), np.asarray(true.rotations[j])
@@ -88,8 +91,17 @@ def test_a_heavier_endpoint_weight_fits_the_endpoint_better():
     ends = []
     for lam_ep in (0.0, 100.0):
         w = constraint_fit_weights(6, 4, jnp.float64, lam_ep=jnp.full(4, lam_ep))
-        fitted = fit_pose(SKEL, rest_pose(SKEL, jnp.float64), pts, jnp.asarray(flowed), TIMES, "sclerp",
-                          iterations=40, max_step=0.1, weights=w)
+        fitted = fit_pose(
+            SKEL,
+            rest_pose(SKEL, jnp.float64),
+            pts,
+            jnp.asarray(flowed),
+            TIMES,
+            "sclerp",
+            iterations=40,
+            max_step=0.1,
+            weights=w,
+        )
         ref = rigid_reference(SKEL, fitted, pts, TIMES, "sclerp")
         ends.append(float(np.max(np.asarray(bone_constraints(jnp.asarray(flowed), ref)[0]))))
     assert ends[1] < 0.05 * ends[0] and ends[0] > 1e-5, ends

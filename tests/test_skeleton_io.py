@@ -11,9 +11,7 @@ from ncflow.shapes import sphere, tube
 from ncflow.skeleton.skeleton import Skeleton, check_inside, load_skeleton, save_skeleton
 
 # a small hand-like tree: root 0, chain 0-1-2, branch 1-3-4, branch 0-5
-POS = np.array(
-    [[0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 2.0, 0.5], [0.7, 1.5, 0.0], [1.2, 2.0, 0.1], [-0.6, -0.4, 0.2]]
-)
+POS = np.array([[0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 2.0, 0.5], [0.7, 1.5, 0.0], [1.2, 2.0, 0.1], [-0.6, -0.4, 0.2]])
 PAR = np.array([-1, 0, 1, 1, 3, 0])
 NAMES = ["root", "spine", "head", "arm", "hand", "leg"]
 

@@ -22,8 +22,12 @@ def _skeleton():
 
 
 def _pose(skel):
-    rot = jnp.stack([quat_from_rotvec(jnp.asarray(v, jnp.float64)) for v in
-                     [[0.3, 0, 0], [0, 1.2, 0], [0.0, 0, 0.9], [0, 0, 0], [0, 0, 0]]])
+    rot = jnp.stack(
+        [
+            quat_from_rotvec(jnp.asarray(v, jnp.float64))
+            for v in [[0.3, 0, 0], [0, 1.2, 0], [0.0, 0, 0.9], [0, 0, 0], [0, 0, 0]]
+        ]
+    )
     return Pose(rot, jnp.asarray([0.1, 0.2, -0.1]))
 
 
@@ -137,8 +141,12 @@ def test_div_free_switch_turns_the_skinned_field_off():
 
 def test_swing_pose_removes_the_twist_of_single_child_joints_only():
     skel = _skeleton()  # joint 0: one child (axis z); joint 1: two children; joint 2: one child (axis y)
-    rot = jnp.stack([quat_from_rotvec(jnp.asarray(v, jnp.float64)) for v in
-                     [[0.2, 0, 0.7], [0, 0.4, 0.5], [0.3, 0.6, 0.0], [0, 0, 0.3], [0, 0, 0]]])
+    rot = jnp.stack(
+        [
+            quat_from_rotvec(jnp.asarray(v, jnp.float64))
+            for v in [[0.2, 0, 0.7], [0, 0.4, 0.5], [0.3, 0.6, 0.0], [0, 0, 0.3], [0, 0, 0]]
+        ]
+    )
     pose = Pose(rot, jnp.asarray([0.1, 0.0, 0.0]))
     swing = SkinnedField(_residual(), skel, pose, dtype=jnp.float64).swing_pose()
     q = np.asarray(rot)

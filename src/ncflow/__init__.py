@@ -6,10 +6,10 @@ A small public surface; everything else lives in the submodules (``ncflow.measur
 
 __version__ = "0.1.0"
 
-from .config import Config, load_config, preset
-from .errors import InputError, NcflowError
-from .matcher import Matcher, MatchResult, TrainingError, match
-from .measures import (
+from ncflow.config import Config, load_config, preset
+from ncflow.errors import InputError, NcflowError
+from ncflow.matcher import Matcher, MatchResult, TrainingError, match
+from ncflow.measures import (
     compress_normal_cycle,
     compress_varifold,
     normal_cycle,
@@ -17,8 +17,8 @@ from .measures import (
     varifold,
     varifold_distance,
 )
-from .mesh import Mesh, fit_normalization, load_mesh, mesh_topology, save_mesh
-from .skeleton import Skeleton, load_skeleton, save_skeleton
+from ncflow.mesh import Mesh, fit_normalization, load_mesh, mesh_topology, save_mesh
+from ncflow.skeleton import Skeleton, load_skeleton, save_skeleton
 
 __all__ = [
     "Config",

@@ -57,9 +57,9 @@ from collections.abc import Callable, Mapping, Sequence
 import numpy as np
 from jaxtyping import Float, Int
 
-from .errors import InputError
-from .mesh import Mesh
-from .skeleton import Pose, Skeleton
+from ncflow.errors import InputError
+from ncflow.mesh import Mesh
+from ncflow.skeleton import Pose, Skeleton
 
 __all__ = [
     "KINDS",
@@ -281,8 +281,17 @@ class _Builder:
     def ellipsoid(self, child: str, center, radii) -> None:
         self.prims.append(Ellipsoid(np.asarray(center, float), np.asarray(radii, float), self.bone(child)))
 
-    def hinge(self, joint: str, child: str, bend_towards, lo: float, hi: float, twist: float = 5.0,
-              large: bool = False, sign: float = 1.0) -> None:
+    def hinge(
+        self,
+        joint: str,
+        child: str,
+        bend_towards,
+        lo: float,
+        hi: float,
+        twist: float = 5.0,
+        large: bool = False,
+        sign: float = 1.0,
+    ) -> None:
         """Flexion of ``joint``: positive angles turn the bone ``joint → child`` towards ``bend_towards``."""
         j = self.names.index(joint)
         d = _unit(self.P(child) - self.P(joint))
@@ -369,7 +378,13 @@ def _humanoid(rng: np.random.Generator) -> _Builder:
     b.cone("head", b.P("neck") - [0, 0.04 * s, 0], b.P("head"), 0.058 * s, 0.052 * s)
     b.ellipsoid("head_end", b.P("head") + [0, 0.075 * s * hf, 0.015 * s], np.array([0.09, 0.115, 0.10]) * s * hf)
     for side, sx in (("l", 1.0), ("r", -1.0)):
-        b.cone(f"shoulder_{side}", b.P(f"shoulder_{side}") * [0.3, 1, 1], b.P(f"shoulder_{side}"), 0.065 * s, 0.058 * s * th)
+        b.cone(
+            f"shoulder_{side}",
+            b.P(f"shoulder_{side}") * [0.3, 1, 1],
+            b.P(f"shoulder_{side}"),
+            0.065 * s,
+            0.058 * s * th,
+        )
         b.bone_cone(f"elbow_{side}", 0.058 * s * th, 0.048 * s * th)
         b.bone_cone(f"wrist_{side}", 0.048 * s * th, 0.040 * s * th)
         b.bone_cone(f"hand_{side}", 0.042 * s * th, 0.038 * s * th)
@@ -651,7 +666,9 @@ def delaunay_flip(
 
         def angle(at, p, q):
             u, w = v[p] - v[at], v[q] - v[at]
-            cosv = np.einsum("ij,ij->i", u, w) / np.maximum(np.linalg.norm(u, axis=1) * np.linalg.norm(w, axis=1), 1e-300)
+            cosv = np.einsum("ij,ij->i", u, w) / np.maximum(
+                np.linalg.norm(u, axis=1) * np.linalg.norm(w, axis=1), 1e-300
+            )
             return np.arccos(np.clip(cosv, -1.0, 1.0))
 
         excess = angle(c, a, b) + angle(d, a, b) - np.pi
@@ -966,7 +983,9 @@ def make_character(kind: str, seed: int = 0, resolution: float | None = None) ->
     mesh = Mesh(vertices=v, faces=f, name=f"{kind}-{seed}", file_index=np.arange(v.shape[0]))
     skeleton = Skeleton.from_arrays(spec.positions, spec.parents, list(spec.names), name=f"{kind}-{seed}")
     weights = skinning_weights(spec, v, f)
-    return Character(kind=kind, seed=int(seed), mesh=mesh, skeleton=skeleton, weights=weights, spec=spec, resolution=res)
+    return Character(
+        kind=kind, seed=int(seed), mesh=mesh, skeleton=skeleton, weights=weights, spec=spec, resolution=res
+    )
 
 
 # ----------------------------------------------------------------------------------------------
@@ -1009,9 +1028,7 @@ def _quat_from_rotvec(rv: np.ndarray) -> np.ndarray:
     return np.concatenate([np.cos(half), k * rv], axis=-1)
 
 
-def pose_from_rotvecs(
-    rotvecs: Float[np.ndarray, "J 3"], translation: Float[np.ndarray, " 3"] | None = None
-) -> Pose:
+def pose_from_rotvecs(rotvecs: Float[np.ndarray, "J 3"], translation: Float[np.ndarray, " 3"] | None = None) -> Pose:
     """A :class:`~ncflow.skeleton.Pose` (NumPy float64) from per-joint rotation vectors (axis × angle, radians)."""
     rotvecs = np.asarray(rotvecs, dtype=np.float64)
     t = np.zeros(3) if translation is None else np.asarray(translation, dtype=np.float64).reshape(3)

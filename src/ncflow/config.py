@@ -33,7 +33,7 @@ import tomllib
 import typing
 from dataclasses import dataclass, field
 
-from .errors import InputError
+from ncflow.errors import InputError
 
 __all__ = [
     "Config",
@@ -192,7 +192,15 @@ def _fast() -> Config:
         preset="fast",
         phases=(
             PhaseConfig(name="varifold", metric="varifold", steps=150, sigmas=(0.5, 0.25), lr=3e-3, warmup=10),
-            PhaseConfig(name="normal-cycles", metric="normal-cycles", steps=250, sigmas=(0.25, 0.1), lr=3e-3, lr_end=3e-4, warmup=10),
+            PhaseConfig(
+                name="normal-cycles",
+                metric="normal-cycles",
+                steps=250,
+                sigmas=(0.25, 0.1),
+                lr=3e-3,
+                lr_end=3e-4,
+                warmup=10,
+            ),
         ),
     )
 
@@ -203,8 +211,24 @@ def _paper() -> Config:
         flow=FlowConfig(width=256, depth=6, n_times=10, gso_width=128, gso_depth=3, skinning=False),
         sampling=SamplingConfig(bone_samples=50, tissue_samples=2000, surface_edges=0),
         phases=(
-            PhaseConfig(name="varifold", metric="varifold", steps=2000, sigmas=(0.5, 0.25), lr=3e-3, warmup=100, trajectory=False),
-            PhaseConfig(name="normal-cycles", metric="normal-cycles", steps=2000, sigmas=(0.25, 0.1), lr=3e-3, lr_end=1e-4, warmup=100),
+            PhaseConfig(
+                name="varifold",
+                metric="varifold",
+                steps=2000,
+                sigmas=(0.5, 0.25),
+                lr=3e-3,
+                warmup=100,
+                trajectory=False,
+            ),
+            PhaseConfig(
+                name="normal-cycles",
+                metric="normal-cycles",
+                steps=2000,
+                sigmas=(0.25, 0.1),
+                lr=3e-3,
+                lr_end=1e-4,
+                warmup=100,
+            ),
             PhaseConfig(name="fine-tune", metric="normal-cycles", steps=1000, sigmas=(0.1,), lr=1e-4, warmup=100),
         ),
         constraints=ConstraintConfig(eps=3e-4, margin=1.0),
@@ -374,8 +398,10 @@ def validate_config(config: Config) -> Config:
         (config.flow.n_times >= 2, "flow.n_times must be at least 2"),
         (config.flow.skinning_width > 0, "flow.skinning_width must be positive"),
         (config.flow.pose_lr_scale >= 0, "flow.pose_lr_scale must be non-negative"),
-        (not (config.flow.skinning and config.flow.div_free),
-         "flow.div_free needs flow.skinning=false (blended bone velocities are not divergence-free)"),
+        (
+            not (config.flow.skinning and config.flow.div_free),
+            "flow.div_free needs flow.skinning=false (blended bone velocities are not divergence-free)",
+        ),
         (config.sampling.bone_samples >= 5, "sampling.bone_samples must be at least 5"),
         (config.sampling.bone_radius > 0, "sampling.bone_radius must be positive"),
         (config.sampling.tissue_samples >= 0, "sampling.tissue_samples must be non-negative"),

@@ -42,9 +42,7 @@ def check_input_file(path: str | os.PathLike, what: str, suffixes: tuple[str, ..
         raise InputError(f"is a directory, expected a {what} file", p)
     suffix = p.suffix.lower()
     if suffix not in suffixes:
-        raise InputError(
-            f"unsupported {what} format {suffix or '(no suffix)'!r}; use one of {', '.join(suffixes)}", p
-        )
+        raise InputError(f"unsupported {what} format {suffix or '(no suffix)'!r}; use one of {', '.join(suffixes)}", p)
     return suffix
 
 

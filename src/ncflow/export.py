@@ -57,10 +57,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from jaxtyping import Float, Int
 
-from .errors import InputError, NcflowError, first_line, read_json_object, read_npz_arrays
+from ncflow.errors import InputError, NcflowError, first_line, read_json_object, read_npz_arrays
 
 if TYPE_CHECKING:
-    from .skeleton import Skeleton
+    from ncflow.skeleton import Skeleton
 
 __all__ = [
     "ResultError",
@@ -154,7 +154,7 @@ def correspondence_maps(
     """
     from scipy.spatial import cKDTree
 
-    from .evaluate.metrics import closest_points_on_surface
+    from ncflow.evaluate.metrics import closest_points_on_surface
 
     rest = np.asarray(rest_source_vertices, dtype=np.float64)
     flowed = np.asarray(flowed_source_vertices, dtype=np.float64)
@@ -273,7 +273,7 @@ def write_frames(
     Raises:
         ResultError: bad shapes or non-finite coordinates (checked before anything is written).
     """
-    from .mesh import save_mesh
+    from ncflow.mesh import save_mesh
 
     frames = _as_frames(frames)
     faces = _as_faces(faces, frames.shape[1])
@@ -574,8 +574,8 @@ def write_result(
             ``out_dir`` without ``overwrite``; raised before anything is written. Any error while
             writing leaves ``out_dir`` as it was and no temporary files behind.
     """
-    from .mesh import save_mesh
-    from .skeleton import save_skeleton
+    from ncflow.mesh import save_mesh
+    from ncflow.skeleton import save_skeleton
 
     out_dir = Path(out_dir)
     _check_target_dir(out_dir, overwrite)
@@ -633,9 +633,7 @@ def write_result(
         _write_indices(tmp / "p2p_tgt_to_src.txt", p2p_ts)
         np.savez(tmp / "map_tgt_to_src.npz", face=map_face, bary=bary)
         write_frames(tmp / "frames", frames, faces)
-        write_animation_glb(
-            tmp / "animation.glb", frames, faces, times, sk_frames, sk_parents, duration=clip_seconds
-        )
+        write_animation_glb(tmp / "animation.glb", frames, faces, times, sk_frames, sk_parents, duration=clip_seconds)
         if skeleton_target is not None:
             save_skeleton(tmp / "skeleton_target.tgf", skeleton_target)
             write_skeleton_frames_json(tmp / "skeleton_frames.json", sk_frames, sk_parents, joint_names, times)
@@ -695,7 +693,7 @@ def _read_json(path: Path) -> dict:
 
 
 def _read_ply(path: Path):
-    from .mesh import load_mesh
+    from ncflow.mesh import load_mesh
 
     if not path.is_file():
         raise InputError("missing result file", path)
@@ -723,7 +721,7 @@ def read_result(out_dir: str | os.PathLike, *, check_animation: bool = True) -> 
     Raises:
         InputError: one line naming the missing or bad file.
     """
-    from .evaluate.ground_truth import read_index_file
+    from ncflow.evaluate.ground_truth import read_index_file
 
     out_dir = Path(out_dir)
     if not out_dir.is_dir():
@@ -794,7 +792,7 @@ def read_result(out_dir: str | os.PathLike, *, check_animation: bool = True) -> 
     if tgf.exists() != sfj.exists():
         raise InputError("missing result file (the skeleton files come together)", sfj if tgf.exists() else tgf)
     if tgf.exists():
-        from .skeleton import load_skeleton
+        from ncflow.skeleton import load_skeleton
 
         skeleton = load_skeleton(tgf)
         sk_frames = read_skeleton_frames_json(sfj)

@@ -61,7 +61,7 @@ from pathlib import Path
 import numpy as np
 from jaxtyping import Float, Int
 
-from .errors import InputError
+from ncflow.errors import InputError
 
 __all__ = [
     "AnimationInfo",
@@ -380,7 +380,9 @@ class _Reader:
         self._buffers[index] = data
         return data
 
-    def _elements(self, view_index: int, offset: int, count: int, dtype: np.dtype, shape: tuple, what: str) -> np.ndarray:
+    def _elements(
+        self, view_index: int, offset: int, count: int, dtype: np.dtype, shape: tuple, what: str
+    ) -> np.ndarray:
         """(count, *shape) elements from a buffer view (byteStride and matrix column padding honoured)."""
         views = self.doc.bufferViews or []
         if not 0 <= view_index < len(views):
@@ -436,10 +438,21 @@ class _Reader:
             itype = _get(ind, "componentType")
             if itype not in (5121, 5123, 5125):
                 self.fail(f"{what}: sparse indices have invalid component type {itype}")
-            at = self._elements(
-                int(_get(ind, "bufferView")), int(_get(ind, "byteOffset", 0) or 0), n, _COMPONENT_DTYPES[itype], (1,), what
-            ).reshape(-1).astype(np.int64)
-            vals = self._elements(int(_get(val, "bufferView")), int(_get(val, "byteOffset", 0) or 0), n, dtype, shape, what)
+            at = (
+                self._elements(
+                    int(_get(ind, "bufferView")),
+                    int(_get(ind, "byteOffset", 0) or 0),
+                    n,
+                    _COMPONENT_DTYPES[itype],
+                    (1,),
+                    what,
+                )
+                .reshape(-1)
+                .astype(np.int64)
+            )
+            vals = self._elements(
+                int(_get(val, "bufferView")), int(_get(val, "byteOffset", 0) or 0), n, dtype, shape, what
+            )
             if at.size and (at.min() < 0 or at.max() >= count):
                 self.fail(f"{what}: sparse index out of range")
             out[at] = vals
@@ -514,7 +527,7 @@ class PosedMesh:
 
     def to_mesh(self, name: str | None = None):
         """The surface as an :class:`ncflow.mesh.Mesh`."""
-        from .mesh import Mesh
+        from ncflow.mesh import Mesh
 
         return Mesh(vertices=self.vertices, faces=self.faces, name=name, file_index=self.file_index)
 
@@ -589,11 +602,11 @@ class GltfSkin:
             try:
                 index = int(str(animation).strip())
             except ValueError:
-                raise InputError(f"no animation named {str(animation)!r}; clips: {self._clip_list()}", self.path) from None
+                raise InputError(
+                    f"no animation named {str(animation)!r}; clips: {self._clip_list()}", self.path
+                ) from None
         if not 0 <= index < len(self.animations):
-            raise InputError(
-                f"animation index {index} out of range (clips: {self._clip_list()})", self.path
-            )
+            raise InputError(f"animation index {index} out of range (clips: {self._clip_list()})", self.path)
         return self.animations[index]
 
     def _clip_list(self) -> str:
@@ -674,7 +687,7 @@ class GltfSkin:
         faces = self.faces
         file_index = np.arange(self.positions.shape[0])
         if weld:
-            from .mesh import weld_vertices
+            from ncflow.mesh import weld_vertices
 
             _, faces, file_index = weld_vertices(self.positions, self.faces)
             posed = posed[file_index]
@@ -1022,7 +1035,9 @@ def _load_gltf_skin(path: Path, skin: int | None, geometry: bool) -> GltfSkin:
     else:
         inverse_bind = reader.accessor(ibm_index, f"skin {skin_index} inverseBindMatrices")
         if inverse_bind.shape != (n_joints, 4, 4):
-            reader.fail(f"skin {skin_index}: need {n_joints} MAT4 inverse bind matrices, got shape {inverse_bind.shape}")
+            reader.fail(
+                f"skin {skin_index}: need {n_joints} MAT4 inverse bind matrices, got shape {inverse_bind.shape}"
+            )
         if not np.all(np.isfinite(inverse_bind)):
             reader.fail(f"skin {skin_index}: non-finite inverse bind matrices")
         inverse_bind = inverse_bind.copy()
@@ -1037,7 +1052,11 @@ def _load_gltf_skin(path: Path, skin: int | None, geometry: bool) -> GltfSkin:
     mesh_node = None
     if geometry:
         for i, node in enumerate(nodes):
-            if _get(node, "skin") is not None and int(_get(node, "skin")) == skin_index and _get(node, "mesh") is not None:
+            if (
+                _get(node, "skin") is not None
+                and int(_get(node, "skin")) == skin_index
+                and _get(node, "mesh") is not None
+            ):
                 mesh_node = i
                 break
         if mesh_node is None:

@@ -40,8 +40,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int, PRNGKeyArray
 
-from .flow.integrate import time_grid
-from .measures.normal_cycles import safe_normalize
+from ncflow.flow.integrate import time_grid
+from ncflow.measures.normal_cycles import safe_normalize
 
 __all__ = [
     "DEFAULT_TISSUE_DELTA",
@@ -197,9 +197,7 @@ def _check_bone_shapes(flowed, reference) -> None:
         )
 
 
-def bone_endpoint_constraint(
-    flowed: Float[Array, "T B n 3"], reference: Float[Array, "T B n 3"]
-) -> Float[Array, " B"]:
+def bone_endpoint_constraint(flowed: Float[Array, "T B n 3"], reference: Float[Array, "T B n 3"]) -> Float[Array, " B"]:
     """g_k^EP = mean over bone k's samples of ‖s(1) − s̄(1)‖² (full squared 3-D distance), (B,)."""
     flowed, reference = jnp.asarray(flowed), jnp.asarray(reference)
     _check_bone_shapes(flowed, reference)

@@ -49,12 +49,12 @@ import jax.flatten_util
 import jax.numpy as jnp
 import numpy as np
 
-from . import __version__
-from .config import Config, PhaseConfig, config_to_dict, preset, validate_config
-from .errors import InputError, NcflowError
-from .flow import GSONet, SkinnedField, flow_points, integrate, make_flow_field, time_grid
-from .losses import arap_energy, bone_constraints, sample_edges, tissue_distortion, tissue_stencil
-from .measures import (
+from ncflow import __version__
+from ncflow.config import Config, PhaseConfig, config_to_dict, preset, validate_config
+from ncflow.errors import InputError, NcflowError
+from ncflow.flow import GSONet, SkinnedField, flow_points, integrate, make_flow_field, time_grid
+from ncflow.losses import arap_energy, bone_constraints, sample_edges, tissue_distortion, tissue_stencil
+from ncflow.measures import (
     compress_normal_cycle,
     compress_varifold,
     normal_cycle,
@@ -62,11 +62,11 @@ from .measures import (
     varifold,
     varifold_inner,
 )
-from .mesh import Mesh, Normalization, fit_normalization, load_mesh, mesh_topology
-from .optim import adabelief_cautious, vectoradam_cautious
-from .optim.schedules import warmup_constant, warmup_cosine
-from .skeleton import Skeleton, check_inside, interpolate_joints, load_skeleton, rigid_reference, sample_bones
-from .skeleton.kinematics import Pose, rest_pose
+from ncflow.mesh import Mesh, Normalization, fit_normalization, load_mesh, mesh_topology
+from ncflow.optim import adabelief_cautious, vectoradam_cautious
+from ncflow.optim.schedules import warmup_constant, warmup_cosine
+from ncflow.skeleton import Skeleton, check_inside, interpolate_joints, load_skeleton, rigid_reference, sample_bones
+from ncflow.skeleton.kinematics import Pose, rest_pose
 
 __all__ = ["Matcher", "MatchResult", "TrainingError", "match"]
 
@@ -173,7 +173,7 @@ class MatchResult:
 
     def save(self, out_dir: str | os.PathLike, overwrite: bool = False) -> Path:
         """Write the output contract of DESIGN.md into ``out_dir`` (atomically)."""
-        from .export import write_result
+        from ncflow.export import write_result
 
         return write_result(
             out_dir,
@@ -209,7 +209,7 @@ def tissue_centroids(vertices: np.ndarray, faces: np.ndarray, config: Config) ->
     so the first tetrahedralisation of a surface is cached (``$NCFLOW_CACHE_DIR``, default
     ``~/.cache/ncflow``) and reused: repeated runs on one machine are then reproducible.
     """
-    from .tissue import soft_tissue
+    from ncflow.tissue import soft_tissue
 
     tc = config.tissue
     h = hashlib.sha256()
@@ -226,8 +226,14 @@ def tissue_centroids(vertices: np.ndarray, faces: np.ndarray, config: Config) ->
         except Exception:  # a broken cache entry is recomputed
             pass
     t0 = time.perf_counter()
-    tissue = soft_tissue(vertices, faces, edge_length_fac=tc.edge_length_fac, epsilon=tc.epsilon, passes=tc.split_passes)
-    info.update(n_tets_initial=int(tissue.n_tets_initial), n_centroids=int(tissue.centroids.shape[0]), seconds=time.perf_counter() - t0)
+    tissue = soft_tissue(
+        vertices, faces, edge_length_fac=tc.edge_length_fac, epsilon=tc.epsilon, passes=tc.split_passes
+    )
+    info.update(
+        n_tets_initial=int(tissue.n_tets_initial),
+        n_centroids=int(tissue.centroids.shape[0]),
+        seconds=time.perf_counter() - t0,
+    )
     if tc.cache:
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
@@ -304,8 +310,15 @@ class DivergenceGuard:
     end the stage). ``factor`` = 0 disables it (always ``"ok"``).
     """
 
-    def __init__(self, factor: float = 2.0, every: int = 20, smooth: float = 0.1, settle: int = 10,
-                 max_trips: int = 3, min_violation: float = 20.0):
+    def __init__(
+        self,
+        factor: float = 2.0,
+        every: int = 20,
+        smooth: float = 0.1,
+        settle: int = 10,
+        max_trips: int = 3,
+        min_violation: float = 20.0,
+    ):
         self.factor, self.every, self.smooth, self.settle = factor, every, smooth, settle
         self.max_trips, self.min_violation = max_trips, min_violation
         self.lr_scale = 1.0
@@ -336,9 +349,16 @@ class DivergenceGuard:
         if d > self.factor * self.best[0] or torn:
             self.trips += 1
             self.lr_scale *= 0.5
-            self.events.append({"step": step, "data_smoothed": float(d), "data_best": float(self.best[0]),
-                                "violation_smoothed": float(v), "violation_best": float(self.best[1]),
-                                "lr_scale": self.lr_scale})
+            self.events.append(
+                {
+                    "step": step,
+                    "data_smoothed": float(d),
+                    "data_best": float(self.best[0]),
+                    "violation_smoothed": float(v),
+                    "violation_best": float(self.best[1]),
+                    "lr_scale": self.lr_scale,
+                }
+            )
             self.ema = self.snapshot_ema
             return "stop" if self.trips >= self.max_trips else "rollback"
         if self.seen % self.every == 0 and np.all(self.ema <= 1.2 * self.best):
@@ -356,7 +376,14 @@ class Params(eqx.Module):
 
 
 def fit_pose(
-    skeleton: Skeleton, pose: Pose, rest_points, flowed, times, interp: str, iterations: int = 2, max_step: float = 0.02,
+    skeleton: Skeleton,
+    pose: Pose,
+    rest_points,
+    flowed,
+    times,
+    interp: str,
+    iterations: int = 2,
+    max_step: float = 0.02,
     weights=None,
 ) -> Pose:
     """Least-squares articulated fit of flowed bone samples: Gauss–Newton on the pose parameters.
@@ -456,7 +483,9 @@ class Matcher:
             y = full[st.metric]
             report = {"n": int(y.size), "m": int(y.size), "relative_error": 0.0, "seconds": 0.0}
             if cfg.compress and y.size > cfg.compress:
-                self.progress.message(f"compressing the target ({st.metric}, sigma={st.sigma:g}) to {cfg.compress} points ...")
+                self.progress.message(
+                    f"compressing the target ({st.metric}, sigma={st.sigma:g}) to {cfg.compress} points ..."
+                )
                 if st.metric == "varifold":
                     y, rep = compress_varifold(y, cfg.compress, st.sigma, st.phase_config.sigma_normal, seed=cfg.seed)
                 else:
@@ -528,7 +557,9 @@ class Matcher:
             local = jnp.stack([jnp.arange(e.shape[0]), e.shape[0] + jnp.arange(e.shape[0])], axis=1)
             surf_loss = arap_energy(rest, local, ends, rot.astype(DTYPE))
             soft = tissue_distortion(xs[:, nv + nb :], delta) if n_tissue else jnp.zeros((), DTYPE)
-            fw = constraint_fit_weights(n_times, bones.shape[0], DTYPE, lam[0] * cw[0], lam[1] * cw[1], c.trajectory_weight)
+            fw = constraint_fit_weights(
+                n_times, bones.shape[0], DTYPE, lam[0] * cw[0], lam[1] * cw[1], c.trajectory_weight
+            )
             pose = fit_pose(skel, pose, bones, jax.lax.stop_gradient(flowed_bones), times, interp, weights=fw)
             pose = jax.lax.stop_gradient(pose)
             reference = rigid_reference(skel, pose, bones, times, interp)
@@ -539,11 +570,21 @@ class Matcher:
                 term = lambda lam_, gam: jnp.mean(lam_ * gam + 0.5 * c.damping * gam**2)  # noqa: E731
                 cons = c.weight * (cw[0] * term(lam[0], gam_ep) + cw[1] * c.trajectory_weight * term(lam[1], gam_tr))
             else:
-                cons = c.soft_weight * (cw[0] * jnp.mean(g_ep / eps) + cw[1] * c.trajectory_weight * jnp.mean(g_tr / eps))
+                cons = c.soft_weight * (
+                    cw[0] * jnp.mean(g_ep / eps) + cw[1] * c.trajectory_weight * jnp.mean(g_tr / eps)
+                )
             total = data + w.surface * surf_loss + w.tissue * soft + cons
-            aux = {"loss": total, "data": data, "surface": surf_loss, "tissue": soft, "constraint": cons,
-                   "g_ep": g_ep, "g_tr": g_tr, "pose": pose,
-                   "watch": jnp.stack([data, jnp.maximum(jnp.max(g_ep), jnp.max(g_tr)) / eps])}
+            aux = {
+                "loss": total,
+                "data": data,
+                "surface": surf_loss,
+                "tissue": soft,
+                "constraint": cons,
+                "g_ep": g_ep,
+                "g_tr": g_tr,
+                "pose": pose,
+                "watch": jnp.stack([data, jnp.maximum(jnp.max(g_ep), jnp.max(g_tr)) / eps]),
+            }
             return total, aux
 
         @eqx.filter_jit
@@ -554,8 +595,11 @@ class Matcher:
             updates, opt_state = optimizer.update(grads, opt_state, eqx.filter(params, eqx.is_inexact_array))
             updates = jax.tree_util.tree_map(lambda u: lr * u, updates)
             if isinstance(params.flow, SkinnedField):
-                updates = eqx.tree_at(lambda u: u.flow.pose, updates,
-                                      replace_fn=lambda p: jax.tree_util.tree_map(lambda a: cfg.flow.pose_lr_scale * a, p))
+                updates = eqx.tree_at(
+                    lambda u: u.flow.pose,
+                    updates,
+                    replace_fn=lambda p: jax.tree_util.tree_map(lambda a: cfg.flow.pose_lr_scale * a, p),
+                )
             params = eqx.apply_updates(params, updates)
             if c.mode == "mdmm":
                 g = jnp.stack([aux["g_ep"], aux["g_tr"]])
@@ -608,9 +652,18 @@ class Matcher:
             for s in range(st.steps):
                 lr = jnp.asarray(schedule(st.start + s) * guard.lr_scale, DTYPE)
                 params, pose, opt_state, lam, aux = step(
-                    params, pose, opt_state, lam, target, jnp.asarray(st.sigma, DTYPE),
-                    jnp.asarray(st.phase_config.sigma_normal, DTYPE), jnp.asarray(yy, DTYPE), cw, lr,
-                    jnp.asarray(done / cfg.total_steps, DTYPE), jax.random.fold_in(k_train, done),
+                    params,
+                    pose,
+                    opt_state,
+                    lam,
+                    target,
+                    jnp.asarray(st.sigma, DTYPE),
+                    jnp.asarray(st.phase_config.sigma_normal, DTYPE),
+                    jnp.asarray(yy, DTYPE),
+                    cw,
+                    lr,
+                    jnp.asarray(done / cfg.total_steps, DTYPE),
+                    jax.random.fold_in(k_train, done),
                 )
                 done += 1
                 watch = np.asarray(aux["watch"], np.float64)  # one transfer: data term, largest g/ε
@@ -636,10 +689,15 @@ class Matcher:
                         )
                     viol = float(watch[1])
                     self.progress.update(done, f"{phase_name} σ={st.sigma:g}", loss, viol)
-            history.append({
-                "phase": phase_name, "metric": st.metric, "sigma": st.sigma, "steps": st.steps,
-                **{k: float(aux[k]) for k in ("loss", "data", "surface", "tissue", "constraint")},
-            })
+            history.append(
+                {
+                    "phase": phase_name,
+                    "metric": st.metric,
+                    "sigma": st.sigma,
+                    "steps": st.steps,
+                    **{k: float(aux[k]) for k in ("loss", "data", "surface", "tissue", "constraint")},
+                }
+            )
         self.progress.close()
         leaves = jax.tree_util.tree_leaves(eqx.filter(params, eqx.is_inexact_array))
         if not all(bool(jnp.all(jnp.isfinite(leaf))) for leaf in leaves):
@@ -647,10 +705,13 @@ class Matcher:
         train_seconds = time.perf_counter() - t_train
         t_out = time.perf_counter()
         result = self._result(params, pose, lam, cw, history, k_eval)
-        result.metrics["timings"].update(train=train_seconds, per_step=train_seconds / max(done, 1),
-                                         outputs=time.perf_counter() - t_out)
+        result.metrics["timings"].update(
+            train=train_seconds, per_step=train_seconds / max(done, 1), outputs=time.perf_counter() - t_out
+        )
         result.metrics["rollbacks"] = guard.events
-        result.metrics["timings"]["total"] = sum(v for k, v in result.metrics["timings"].items() if k in ("setup", "train", "outputs"))
+        result.metrics["timings"]["total"] = sum(
+            v for k, v in result.metrics["timings"].items() if k in ("setup", "train", "outputs")
+        )
         return result
 
     def _final_pose(self, params: Params, pose: Pose, lam, cw, key) -> tuple[Pose, np.ndarray, np.ndarray]:
@@ -661,28 +722,32 @@ class Matcher:
         bones = sample_bones(self.skel_n, key, FINAL_BONE_SAMPLES, radius=self.radii, dtype=DTYPE).points
         xs = flow_points(params.flow, bones.reshape(-1, 3), cfg.flow.n_times).reshape(cfg.flow.n_times, *bones.shape)
         times = time_grid(cfg.flow.n_times, DTYPE)
-        fw = constraint_fit_weights(cfg.flow.n_times, bones.shape[0], DTYPE, lam[0] * cw[0], lam[1] * cw[1], c.trajectory_weight)
+        fw = constraint_fit_weights(
+            cfg.flow.n_times, bones.shape[0], DTYPE, lam[0] * cw[0], lam[1] * cw[1], c.trajectory_weight
+        )
         pose = fit_pose(self.skel_n, pose, bones, xs, times, cfg.interp, iterations=3, weights=fw)
         ref = rigid_reference(self.skel_n, pose, bones, times, cfg.interp)
         g_ep, g_tr = bone_constraints(xs, ref)
         return pose, np.asarray(g_ep, np.float64), np.asarray(g_tr, np.float64)
 
     def _result(self, params: Params, pose: Pose, lam, cw, history, key) -> MatchResult:
-        from .export import correspondence_maps
+        from ncflow.export import correspondence_maps
 
         cfg = self.config
         norm = self.norm
         frame_times = np.linspace(0.0, 1.0, cfg.frames)
         src = jnp.asarray(self.src_v, DTYPE)
-        frames_n = np.asarray(flow_points(params.flow, src, cfg.flow.n_times, times=jnp.asarray(frame_times, DTYPE)), np.float64)
+        frames_n = np.asarray(
+            flow_points(params.flow, src, cfg.flow.n_times, times=jnp.asarray(frame_times, DTYPE)), np.float64
+        )
         frames_n[0] = self.src_v  # t = 0 is the source exactly
         deformed_n = frames_n[-1]  # Hermite output at a grid time is the grid state: the state at t = 1
         if not (np.all(np.isfinite(frames_n)) and np.all(np.isfinite(deformed_n))):
             raise TrainingError("the trained flow produced non-finite positions")
         pose, g_ep, g_tr = self._final_pose(params, pose, lam, cw, key)
-        joints = np.stack([
-            np.asarray(interpolate_joints(self.skel_n, pose, float(t), cfg.interp), np.float64) for t in frame_times
-        ])
+        joints = np.stack(
+            [np.asarray(interpolate_joints(self.skel_n, pose, float(t), cfg.interp), np.float64) for t in frame_times]
+        )
         maps = correspondence_maps(self.src_v, self.source.faces, deformed_n, self.tgt_v, self.target.faces)
         eps = cfg.constraints.eps
         names = self.skeleton.names or tuple(f"joint {j}" for j in range(self.skeleton.n_joints))

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 from jaxtyping import Float, Int
 
-from .errors import InputError, check_input_file
+from ncflow.errors import InputError, check_input_file
 
 __all__ = [
     "Mesh",
@@ -392,7 +392,10 @@ def close_boundary(
     _, label = connected_components(graph, directed=False)
     loops, loop_of_edge = np.unique(label[a], return_inverse=True)
     centroids = np.stack(
-        [vertices[np.unique(np.concatenate([a[loop_of_edge == k], b[loop_of_edge == k]]))].mean(0) for k in range(loops.size)]
+        [
+            vertices[np.unique(np.concatenate([a[loop_of_edge == k], b[loop_of_edge == k]]))].mean(0)
+            for k in range(loops.size)
+        ]
     )
     cap = np.stack([start, end, nv + loop_of_edge.reshape(-1)], axis=1)
     return np.concatenate([vertices, centroids]), np.concatenate([faces, cap])

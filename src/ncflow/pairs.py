@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 from jaxtyping import Float, Int
 
-from .characters import (
+from ncflow.characters import (
     Character,
     _winding_numbers,
     check_closed_surface,
@@ -45,10 +45,16 @@ from .characters import (
     random_pose,
     relax_on_surface,
 )
-from .errors import InputError
-from .evaluate import GroundTruth, closest_points_on_surface, ground_truth_from_vertex_map, save_ground_truth, surface_points
-from .mesh import Mesh, close_boundary
-from .skeleton import Skeleton, save_skeleton
+from ncflow.errors import InputError
+from ncflow.evaluate import (
+    GroundTruth,
+    closest_points_on_surface,
+    ground_truth_from_vertex_map,
+    save_ground_truth,
+    surface_points,
+)
+from ncflow.mesh import Mesh, close_boundary
+from ncflow.skeleton import Skeleton, save_skeleton
 
 __all__ = [
     "Pair",
@@ -114,8 +120,11 @@ def _identity_ground_truth(source: Mesh, name: str) -> GroundTruth:
 def _ground_truth(face: np.ndarray, bary: np.ndarray, name: str) -> GroundTruth:
     n = face.shape[0]
     return GroundTruth(
-        face=np.asarray(face, dtype=np.int64), bary=np.asarray(bary, dtype=np.float64),
-        target_index=np.arange(n), n_target=n, name=name,
+        face=np.asarray(face, dtype=np.int64),
+        bary=np.asarray(bary, dtype=np.float64),
+        target_index=np.arange(n),
+        n_target=n,
+        name=name,
     )
 
 
@@ -197,10 +206,16 @@ def make_pair(
     source = Mesh(vertices=src_v, faces=ch.faces, name=f"{name}/source", file_index=np.arange(src_v.shape[0]))
     skeleton = ch.skeleton.with_positions(src_j)
     info = {
-        "kind": kind, "seed": int(seed), "skinning": skinning, "source_pose": source_pose,
-        "resolution": ch.resolution, "retriangulated": bool(retriangulate),
-        "large_joint": info_b["large_joint"], "large_angle_deg": info_b["large_angle_deg"],
-        "pose_a": pose_a, "pose_b": pose_b,
+        "kind": kind,
+        "seed": int(seed),
+        "skinning": skinning,
+        "source_pose": source_pose,
+        "resolution": ch.resolution,
+        "retriangulated": bool(retriangulate),
+        "large_joint": info_b["large_joint"],
+        "large_angle_deg": info_b["large_angle_deg"],
+        "pose_a": pose_a,
+        "pose_b": pose_b,
     }
     if retriangulate:
         t_res = 0.8 * ch.resolution if target_resolution is None else float(target_resolution)
@@ -218,11 +233,23 @@ def make_pair(
         tf = ch.faces
         target_v = posed_b.vertices
         gt = _identity_ground_truth(source, f"{name}/gt")
-    target = Mesh(vertices=target_v, faces=np.asarray(tf, dtype=np.int64), name=f"{name}/target",
-                  file_index=np.arange(target_v.shape[0]))
+    target = Mesh(
+        vertices=target_v,
+        faces=np.asarray(tf, dtype=np.int64),
+        name=f"{name}/target",
+        file_index=np.arange(target_v.shape[0]),
+    )
     info.update(n_source=source.n_vertices, n_target=target.n_vertices)
-    return Pair(name=name, source=source, target=target, skeleton=skeleton, ground_truth=gt, dataset=kind,
-                target_joints=posed_b.joints, info=info)
+    return Pair(
+        name=name,
+        source=source,
+        target=target,
+        skeleton=skeleton,
+        ground_truth=gt,
+        dataset=kind,
+        target_joints=posed_b.joints,
+        info=info,
+    )
 
 
 # ----------------------------------------------------------------------------------------------
@@ -250,7 +277,7 @@ def _pseudo_normal_sign(
 ) -> np.ndarray:
     """+1 outside / -1 inside a closed, consistently wound mesh, from the angle-weighted pseudo-normal
     of the closest feature (face, edge or vertex; Bærentzen & Aanæs 2005)."""
-    from .mesh import mesh_topology
+    from ncflow.mesh import mesh_topology
 
     tri = v[f]
     fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
@@ -260,10 +287,14 @@ def _pseudo_normal_sign(
     for k in range(3):
         a, b, c = tri[:, k], tri[:, (k + 1) % 3], tri[:, (k + 2) % 3]
         e1, e2 = b - a, c - a
-        cosang = np.einsum("ij,ij->i", e1, e2) / np.maximum(np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1), 1e-300)
+        cosang = np.einsum("ij,ij->i", e1, e2) / np.maximum(
+            np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1), 1e-300
+        )
         np.add.at(vn, f[:, k], np.arccos(np.clip(cosang, -1.0, 1.0))[:, None] * fn)
     topo = mesh_topology(f, v.shape[0])
-    en = fn[topo.edge_faces[:, 0]] + np.where(topo.edge_faces[:, 1:2] >= 0, fn[np.maximum(topo.edge_faces[:, 1], 0)], 0.0)
+    en = fn[topo.edge_faces[:, 0]] + np.where(
+        topo.edge_faces[:, 1:2] >= 0, fn[np.maximum(topo.edge_faces[:, 1], 0)], 0.0
+    )
     zero = bary <= tol
     nz = zero.sum(axis=1)
     normal = fn[face].copy()
@@ -456,8 +487,22 @@ def _retriangulated_target(
 #: finger-tip vertices of the MANO right hand: index, middle, little, ring, thumb
 MANO_TIP_VERTICES = (320, 443, 672, 555, 744)
 MANO_JOINT_NAMES = (
-    "wrist", "index1", "index2", "index3", "middle1", "middle2", "middle3", "little1", "little2", "little3",
-    "ring1", "ring2", "ring3", "thumb1", "thumb2", "thumb3",
+    "wrist",
+    "index1",
+    "index2",
+    "index3",
+    "middle1",
+    "middle2",
+    "middle3",
+    "little1",
+    "little2",
+    "little3",
+    "ring1",
+    "ring2",
+    "ring3",
+    "thumb1",
+    "thumb2",
+    "thumb3",
 )
 _TIP_NAMES = ("index_tip", "middle_tip", "little_tip", "ring_tip", "thumb_tip")
 
@@ -571,12 +616,26 @@ def load_mano(path: str | os.PathLike) -> ManoModel:
         raise InputError(f"cannot read MANO model ({msg})", path) from None
     if "faces" not in data and "f" in data:
         data["faces"] = data["f"]
-    missing = [k for k in ("v_template", "faces", "weights", "J_regressor", "kintree_table", "posedirs") if k not in data]
+    missing = [
+        k for k in ("v_template", "faces", "weights", "J_regressor", "kintree_table", "posedirs") if k not in data
+    ]
     if missing:
         raise InputError(f"MANO model lacks {', '.join(missing)}", path)
-    arr = {k: _plain(data.get(k), k, path) for k in (
-        "v_template", "faces", "weights", "J_regressor", "kintree_table", "posedirs", "shapedirs",
-        "hands_components", "hands_mean", "hands_coeffs")}
+    arr = {
+        k: _plain(data.get(k), k, path)
+        for k in (
+            "v_template",
+            "faces",
+            "weights",
+            "J_regressor",
+            "kintree_table",
+            "posedirs",
+            "shapedirs",
+            "hands_components",
+            "hands_mean",
+            "hands_coeffs",
+        )
+    }
     v = arr["v_template"].astype(np.float64)
     nv = v.shape[0]
     kt = arr["kintree_table"].astype(np.int64)
@@ -603,7 +662,10 @@ def load_mano(path: str | os.PathLike) -> ManoModel:
         (model.faces.ndim == 2 and model.faces.shape[1] == 3, f"faces must be (F, 3), got {model.faces.shape}"),
         (model.weights.shape == (nv, nj), f"weights must be ({nv}, {nj}), got {model.weights.shape}"),
         (model.J_regressor.shape == (nj, nv), f"J_regressor must be ({nj}, {nv}), got {model.J_regressor.shape}"),
-        (model.posedirs.shape == (nv, 3, 9 * (nj - 1)), f"posedirs must be ({nv}, 3, {9 * (nj - 1)}), got {model.posedirs.shape}"),
+        (
+            model.posedirs.shape == (nv, 3, 9 * (nj - 1)),
+            f"posedirs must be ({nv}, 3, {9 * (nj - 1)}), got {model.posedirs.shape}",
+        ),
         (int(np.sum(parents < 0)) == 1, "kintree_table must have exactly one root"),
     ]
     for ok, msg in checks:
@@ -646,7 +708,9 @@ def mano_finger_pose(
     n_f = 3 * (model.n_joints - 1)
     if isinstance(pose, (int, np.integer)) and not isinstance(pose, bool):
         if model.hands_coeffs is None:
-            raise InputError("the MANO model has no hands_coeffs: give pose coefficients instead of an index", model.name)
+            raise InputError(
+                "the MANO model has no hands_coeffs: give pose coefficients instead of an index", model.name
+            )
         if not 0 <= int(pose) < model.hands_coeffs.shape[0]:
             raise InputError(f"pose index {int(pose)} out of range [0, {model.hands_coeffs.shape[0] - 1}]", model.name)
         coeffs = model.hands_coeffs[int(pose)]
@@ -660,7 +724,9 @@ def mano_finger_pose(
             raise InputError(f"an axis-angle finger pose needs {n_f} values, got {coeffs.size}")
         return coeffs.copy()
     if model.hands_components is None:
-        raise InputError("the MANO model has no hands_components: give an axis-angle pose (space='axis_angle')", model.name)
+        raise InputError(
+            "the MANO model has no hands_components: give an axis-angle pose (space='axis_angle')", model.name
+        )
     n = coeffs.size
     if n > model.hands_components.shape[0]:
         raise InputError(f"at most {model.hands_components.shape[0]} PCA coefficients, got {n}")
@@ -797,8 +863,12 @@ def mano_pair(
     source = Mesh(vertices=va, faces=model.faces, name=f"{name}/source", file_index=np.arange(va.shape[0]))
     skeleton = _mano_skeleton(model, ja, va, tip_vertices, name)
     target_joints = np.concatenate([jb, vb[[int(t) for t in tip_vertices]]])[skeleton.file_index]
-    info = {"model": model.name, "pose_a": pose_a if isinstance(pose_a, (int, np.integer)) else "custom",
-            "pose_b": pose_b if isinstance(pose_b, (int, np.integer)) else "custom", "retriangulated": bool(retriangulate)}
+    info = {
+        "model": model.name,
+        "pose_a": pose_a if isinstance(pose_a, (int, np.integer)) else "custom",
+        "pose_b": pose_b if isinstance(pose_b, (int, np.integer)) else "custom",
+        "retriangulated": bool(retriangulate),
+    }
     if retriangulate:
         rest_v, _ = mano_forward(model, np.zeros(3 * (model.n_joints - 1)), None, betas)
         tres = 36.0 if target_resolution is None else float(target_resolution)
@@ -808,8 +878,16 @@ def mano_pair(
         target_v, tf, gt = vb, model.faces, _identity_ground_truth(source, f"{name}/gt")
     target = Mesh(vertices=target_v, faces=tf, name=f"{name}/target", file_index=np.arange(target_v.shape[0]))
     info.update(n_source=source.n_vertices, n_target=target.n_vertices)
-    return Pair(name=name, source=source, target=target, skeleton=skeleton, ground_truth=gt, dataset="mano",
-                target_joints=target_joints, info=info)
+    return Pair(
+        name=name,
+        source=source,
+        target=target,
+        skeleton=skeleton,
+        ground_truth=gt,
+        dataset="mano",
+        target_joints=target_joints,
+        info=info,
+    )
 
 
 # ----------------------------------------------------------------------------------------------
@@ -838,7 +916,7 @@ def gltf_pair(
     cells along its largest extent, default 48) mapped to the target by its barycentric
     coordinates.
     """
-    from .gltf import load_gltf_skin, merge_zero_length_bones
+    from ncflow.gltf import load_gltf_skin, merge_zero_length_bones
 
     rig = load_gltf_skin(path, skin)
     a = rig.pose(float(time_a), animation)
@@ -849,8 +927,14 @@ def gltf_pair(
     skeleton = Skeleton.from_arrays(a.joint_positions[keep], parents, [a.names[j] for j in keep], name=str(path))
     target_joints = b.joint_positions[keep][skeleton.file_index]
     source = Mesh(vertices=a.vertices, faces=a.faces, name=f"{name}/source", file_index=a.file_index)
-    info = {"file": str(path), "animation": a.animation, "time_a": a.time, "time_b": b.time,
-            "retriangulated": bool(retriangulate), "merged_joints": int(len(a.names) - keep.size)}
+    info = {
+        "file": str(path),
+        "animation": a.animation,
+        "time_a": a.time,
+        "time_b": b.time,
+        "retriangulated": bool(retriangulate),
+        "merged_joints": int(len(a.names) - keep.size),
+    }
     if retriangulate:
         bind = rig.pose(None)  # same welded vertices and faces as every pose
         tres = 48.0 if target_resolution is None else float(target_resolution)
@@ -860,8 +944,16 @@ def gltf_pair(
         target_v, tf, gt = b.vertices, b.faces, _identity_ground_truth(source, f"{name}/gt")
     target = Mesh(vertices=target_v, faces=tf, name=f"{name}/target", file_index=np.arange(target_v.shape[0]))
     info.update(n_source=source.n_vertices, n_target=target.n_vertices)
-    return Pair(name=name, source=source, target=target, skeleton=skeleton, ground_truth=gt, dataset=stem,
-                target_joints=target_joints, info=info)
+    return Pair(
+        name=name,
+        source=source,
+        target=target,
+        skeleton=skeleton,
+        ground_truth=gt,
+        dataset=stem,
+        target_joints=target_joints,
+        info=info,
+    )
 
 
 # ----------------------------------------------------------------------------------------------
@@ -918,7 +1010,12 @@ def write_pair(pair: Pair, directory: str | os.PathLike, fmt: str = "ply") -> di
 
 
 def write_pairs(
-    pairs, out_dir: str | os.PathLike, fmt: str = "ply", csv_name: str = "pairs.csv", start: int = 0, verbose: bool = False
+    pairs,
+    out_dir: str | os.PathLike,
+    fmt: str = "ply",
+    csv_name: str = "pairs.csv",
+    start: int = 0,
+    verbose: bool = False,
 ) -> Path:
     """Write pairs to ``out_dir/pair_XXX/`` (see :func:`write_pair`) and list them in
     ``out_dir/pairs.csv`` with columns ``name, source, target, skeleton, gt, gt_format, dataset``
@@ -930,18 +1027,23 @@ def write_pairs(
     for k, pair in enumerate(pairs, start=start):
         sub = f"pair_{k:03d}"
         files = write_pair(pair, out / sub, fmt)
-        rows.append({
-            "name": pair.name,
-            "source": f"{sub}/{files['source']}",
-            "target": f"{sub}/{files['target']}",
-            "skeleton": f"{sub}/{files['skeleton']}",
-            "gt": f"{sub}/{files['gt']}",
-            "gt_format": "npz",
-            "dataset": pair.dataset,
-        })
+        rows.append(
+            {
+                "name": pair.name,
+                "source": f"{sub}/{files['source']}",
+                "target": f"{sub}/{files['target']}",
+                "skeleton": f"{sub}/{files['skeleton']}",
+                "gt": f"{sub}/{files['gt']}",
+                "gt_format": "npz",
+                "dataset": pair.dataset,
+            }
+        )
         if verbose:
-            print(f"{sub}: {pair.name} ({pair.dataset}) source {pair.source.n_vertices} vertices, "
-                  f"target {pair.target.n_vertices} vertices, {pair.skeleton.n_bones} bones", flush=True)
+            print(
+                f"{sub}: {pair.name} ({pair.dataset}) source {pair.source.n_vertices} vertices, "
+                f"target {pair.target.n_vertices} vertices, {pair.skeleton.n_bones} bones",
+                flush=True,
+            )
     path = out / csv_name
     with open(path, "w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=list(PAIRS_CSV_COLUMNS))

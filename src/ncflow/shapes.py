@@ -71,7 +71,8 @@ def capsule(
     prof = np.asarray(south + body + north)
     theta = 2 * np.pi * np.arange(n_around) / n_around
     rings = np.stack(
-        [prof[:, 0:1] * np.cos(theta)[None], prof[:, 0:1] * np.sin(theta)[None], np.repeat(prof[:, 1:2], n_around, 1)], -1
+        [prof[:, 0:1] * np.cos(theta)[None], prof[:, 0:1] * np.sin(theta)[None], np.repeat(prof[:, 1:2], n_around, 1)],
+        -1,
     ).reshape(-1, 3)
     n_rings = prof.shape[0]
     faces = [_grid_faces(n_around, n_rings, True, diagonal)]
@@ -110,7 +111,7 @@ def rounded_box(size: float = 2.0, rounding: float = 0.0, subdivisions: int = 8)
             offset += n * n
     import trimesh
 
-    from .mesh import weld_vertices
+    from ncflow.mesh import weld_vertices
 
     v, f, _ = weld_vertices(np.concatenate(verts), np.concatenate(faces), tol=1e-9)
     half = size / 2.0

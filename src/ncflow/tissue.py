@@ -48,8 +48,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int, PRNGKeyArray
 
-from .errors import InputError
-from .mesh import close_boundary
+from ncflow.errors import InputError
+from ncflow.mesh import close_boundary
 
 __all__ = [
     "DEFAULT_EDGE_LENGTH_FAC",
@@ -251,9 +251,7 @@ def tet_centroids(vertices: Float[np.ndarray, "P 3"], tets: Int[np.ndarray, "K 4
     return np.asarray(vertices, dtype=np.float64)[np.asarray(tets)].mean(axis=1)
 
 
-def _bisect(
-    vertices: np.ndarray, tets: np.ndarray, flag: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+def _bisect(vertices: np.ndarray, tets: np.ndarray, flag: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Split the flagged tets at the midpoint m of their longest edge (a, b) into (…a→m…) and (…b→m…).
 
     Replacing one endpoint of an edge by its midpoint halves the signed volume (it is linear in each

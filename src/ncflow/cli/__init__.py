@@ -12,8 +12,8 @@ import importlib
 import pkgutil
 import sys
 
-from .. import __version__
-from ..errors import NcflowError
+from ncflow import __version__
+from ncflow.errors import NcflowError
 
 __all__ = ["main", "build_parser"]
 

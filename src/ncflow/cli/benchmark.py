@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from .match import add_config_arguments, config_from_args
+from ncflow.cli.match import add_config_arguments, config_from_args
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -24,10 +24,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("pairs", metavar="PAIRS.csv", help="pairs file (ncflow make-pairs writes one)")
     p.add_argument("--out", required=True, metavar="REPORT_DIR", help="benchmark folder (created; reused to resume)")
     p.add_argument("--jobs", type=int, default=1, metavar="N", help="worker processes (default 1)")
-    p.add_argument("--ablations", action="store_true",
-                   help="run the Table 1 variants (sets the metric, interpolation and constraint mode itself)")
-    p.add_argument("--geodesic-method", choices=["auto", "exact", "heat", "dijkstra"], default="auto",
-                   help="geodesic solver of the evaluation (default auto)")
+    p.add_argument(
+        "--ablations",
+        action="store_true",
+        help="run the Table 1 variants (sets the metric, interpolation and constraint mode itself)",
+    )
+    p.add_argument(
+        "--geodesic-method",
+        choices=["auto", "exact", "heat", "dijkstra"],
+        default="auto",
+        help="geodesic solver of the evaluation (default auto)",
+    )
     p.add_argument("--no-plots", action="store_true", help="no per-run plots and no curve plots")
     add_config_arguments(p)
     p.set_defaults(func=run)
@@ -36,8 +43,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import sys
 
-    from ..errors import InputError
-    from ..evaluate.benchmark import read_pairs_csv, run_benchmark
+    from ncflow.errors import InputError
+    from ncflow.evaluate.benchmark import read_pairs_csv, run_benchmark
 
     if args.jobs < 1:
         raise InputError(f"--jobs must be at least 1 (got {args.jobs})")
@@ -46,14 +53,22 @@ def run(args: argparse.Namespace) -> int:
     read_pairs_csv(args.pairs)  # one-line error on a bad csv before the configuration is built
     cfg = config_from_args(args)
     res = run_benchmark(
-        args.pairs, args.out, cfg, ablations=args.ablations, jobs=args.jobs, plots=not args.no_plots,
-        geodesic_method=args.geodesic_method, log=lambda line: print(line, flush=True),
+        args.pairs,
+        args.out,
+        cfg,
+        ablations=args.ablations,
+        jobs=args.jobs,
+        plots=not args.no_plots,
+        geodesic_method=args.geodesic_method,
+        log=lambda line: print(line, flush=True),
     )
     _print_summary(res.report)
     print(f"wrote {args.out}/report.md and report.json")
     if res.n_failed:
-        print(f"ncflow benchmark: {res.n_failed} run(s) failed (listed in report.md); run the same command again to retry them",
-              file=sys.stderr)
+        print(
+            f"ncflow benchmark: {res.n_failed} run(s) failed (listed in report.md); run the same command again to retry them",
+            file=sys.stderr,
+        )
         return 1
     return 0
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from .match import add_config_arguments, config_from_args
+from ncflow.cli.match import add_config_arguments, config_from_args
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -19,7 +19,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         ),
     )
     p.add_argument("--out", default="ncflow-demo", help="output directory (default ./ncflow-demo)")
-    p.add_argument("--kind", choices=["humanoid", "hand", "quadruped"], default="humanoid", help="character (default humanoid)")
+    p.add_argument(
+        "--kind", choices=["humanoid", "hand", "quadruped"], default="humanoid", help="character (default humanoid)"
+    )
     p.add_argument("--pair-seed", type=int, default=0, help="seed of the generated character and poses (default 0)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing demo output")
     p.add_argument("--quiet", action="store_true", help="no progress display")
@@ -33,10 +35,10 @@ def run(args: argparse.Namespace) -> int:
     import time
     from pathlib import Path
 
-    from ..errors import InputError
-    from ..evaluate import auc, geodesic_errors
-    from ..matcher import Matcher
-    from ..pairs import make_pair, write_pair
+    from ncflow.errors import InputError
+    from ncflow.evaluate import auc, geodesic_errors
+    from ncflow.matcher import Matcher
+    from ncflow.pairs import make_pair, write_pair
 
     out = Path(args.out)
     if out.is_dir() and any(out.iterdir()) and not args.overwrite:
@@ -51,7 +53,13 @@ def run(args: argparse.Namespace) -> int:
         )
     result = Matcher(pair.source, pair.target, pair.skeleton, cfg, quiet=args.quiet).run()
     gt = pair.ground_truth
-    err = geodesic_errors(pair.source, result.maps["map_face"][gt.target_index], result.maps["map_bary"][gt.target_index], gt.face, gt.bary)
+    err = geodesic_errors(
+        pair.source,
+        result.maps["map_face"][gt.target_index],
+        result.maps["map_bary"][gt.target_index],
+        gt.face,
+        gt.bary,
+    )
     summary = {
         "kind": args.kind,
         "pair_seed": args.pair_seed,

@@ -19,7 +19,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("b", help="second mesh")
     p.add_argument("--metric", choices=["varifold", "normal-cycles"], default="normal-cycles")
     p.add_argument("--sigma", type=float, required=True, help="spatial kernel width σ")
-    p.add_argument("--sigma-normal", type=float, default=0.5, help="normal kernel width σ_n (varifold only; default 0.5)")
+    p.add_argument(
+        "--sigma-normal", type=float, default=0.5, help="normal kernel width σ_n (varifold only; default 0.5)"
+    )
     p.add_argument("--compress", type=int, metavar="M", help="compress B to M representatives (Nyström) first")
     p.add_argument("--seed", type=int, default=0, help="seed of the compression's sampling (default 0)")
     p.add_argument(
@@ -38,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
 
     import jax
 
-    from ..errors import InputError
+    from ncflow.errors import InputError
 
     if not args.sigma > 0:
         raise InputError(f"--sigma must be positive (got {args.sigma})")
@@ -50,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
         jax.config.update("jax_enable_x64", True)
     import jax.numpy as jnp
 
-    from ..measures import (
+    from ncflow.measures import (
         compress_normal_cycle,
         compress_varifold,
         normal_cycle,
@@ -58,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
         varifold,
         varifold_distance,
     )
-    from ..mesh import fit_normalization, load_mesh, mesh_topology
+    from ncflow.mesh import fit_normalization, load_mesh, mesh_topology
 
     t0 = time.perf_counter()
     a, b = load_mesh(args.a), load_mesh(args.b)

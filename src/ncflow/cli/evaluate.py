@@ -23,20 +23,30 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--source", required=True, help="the source mesh given to ncflow match")
     p.add_argument("--target", required=True, help="the target mesh given to ncflow match")
     p.add_argument(
-        "--gt", required=True, nargs="+", metavar="GT",
+        "--gt",
+        required=True,
+        nargs="+",
+        metavar="GT",
         help="ground truth: 'identity', a .vts/.txt/.npy/.npz file, or two .vts files with --gt-format template",
     )
-    p.add_argument("--gt-format", choices=["identity", "vts", "index", "npz", "template"],
-                   help="ground-truth format (default: from the suffix)")
-    p.add_argument("--geodesic-method", choices=["auto", "exact", "heat", "dijkstra"], default="auto",
-                   help="geodesic solver (default auto: exact polyhedral geodesics up to 0.25, heat method beyond)")
+    p.add_argument(
+        "--gt-format",
+        choices=["identity", "vts", "index", "npz", "template"],
+        help="ground-truth format (default: from the suffix)",
+    )
+    p.add_argument(
+        "--geodesic-method",
+        choices=["auto", "exact", "heat", "dijkstra"],
+        default="auto",
+        help="geodesic solver (default auto: exact polyhedral geodesics up to 0.25, heat method beyond)",
+    )
     p.add_argument("--no-plots", action="store_true", help="write evaluation.json only")
     p.add_argument("--json", action="store_true", help="print one JSON object (the content of evaluation.json)")
     p.set_defaults(func=run)
 
 
 def _gt_spec(values: list[str], fmt: str | None):
-    from ..errors import InputError
+    from ncflow.errors import InputError
 
     if len(values) == 2 and fmt == "template":
         return tuple(values)
@@ -48,15 +58,14 @@ def _gt_spec(values: list[str], fmt: str | None):
 def run(args: argparse.Namespace) -> int:
     import json
 
-    from ..evaluate.report import (
-        EVALUATION_FILE,
-        evaluate_result,
-        evaluation_text,
-        write_evaluation,
-    )
+    from ncflow.evaluate.report import EVALUATION_FILE, evaluate_result, evaluation_text, write_evaluation
 
     ev = evaluate_result(
-        args.result_dir, args.source, args.target, _gt_spec(args.gt, args.gt_format), args.gt_format,
+        args.result_dir,
+        args.source,
+        args.target,
+        _gt_spec(args.gt, args.gt_format),
+        args.gt_format,
         geodesic_method=args.geodesic_method,
     )
     record = write_evaluation(ev, plots=not args.no_plots)

@@ -22,20 +22,39 @@ def register(sub: argparse._SubParsersAction) -> None:
         ),
     )
     p.add_argument("out_dir", metavar="OUT_DIR", help="output folder (created)")
-    p.add_argument("--kind", choices=("humanoid", "hand", "quadruped"), default="humanoid",
-                   help="procedural character kind (default humanoid)")
+    p.add_argument(
+        "--kind",
+        choices=("humanoid", "hand", "quadruped"),
+        default="humanoid",
+        help="procedural character kind (default humanoid)",
+    )
     p.add_argument("--n", type=int, default=1, metavar="N", help="number of procedural pairs (default 1)")
     p.add_argument("--seed", type=int, default=0, metavar="S", help="first seed; pair k uses seed S+k (default 0)")
-    p.add_argument("--resolution", type=float, metavar="R",
-                   help="source marching-cubes cells along the largest extent (procedural; default per kind)")
-    p.add_argument("--target-resolution", type=float, metavar="R",
-                   help="resolution of the retriangulated target (procedural default 0.8 x the source's; "
-                        "MANO default 36, glTF 48)")
-    p.add_argument("--retriangulate", action=argparse.BooleanOptionalAction, default=None,
-                   help="give the target its own triangulation (default: yes for procedural characters, "
-                        "no for MANO and glTF, whose identity ground truth is then vertex to vertex)")
-    p.add_argument("--posed-source", action="store_true",
-                   help="procedural: pose the source too (small random rotations) instead of the rest pose")
+    p.add_argument(
+        "--resolution",
+        type=float,
+        metavar="R",
+        help="source marching-cubes cells along the largest extent (procedural; default per kind)",
+    )
+    p.add_argument(
+        "--target-resolution",
+        type=float,
+        metavar="R",
+        help="resolution of the retriangulated target (procedural default 0.8 x the source's; "
+        "MANO default 36, glTF 48)",
+    )
+    p.add_argument(
+        "--retriangulate",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="give the target its own triangulation (default: yes for procedural characters, "
+        "no for MANO and glTF, whose identity ground truth is then vertex to vertex)",
+    )
+    p.add_argument(
+        "--posed-source",
+        action="store_true",
+        help="procedural: pose the source too (small random rotations) instead of the rest pose",
+    )
     p.add_argument("--format", choices=("ply", "obj"), default="ply", help="mesh format (default ply)")
     p.add_argument("--mano", metavar="MODEL", help="MANO model file (.npz or .pkl), supplied by the user")
     p.add_argument("--poses", metavar="I,J[,K,L...]", help="MANO: hands_coeffs rows, paired two at a time")
@@ -46,7 +65,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _pairs_of(text: str | None, option: str, cast) -> list[tuple]:
-    from ..errors import InputError
+    from ncflow.errors import InputError
 
     if not text:
         raise InputError(f"{option} is required")
@@ -69,15 +88,15 @@ def _float(text: str) -> float:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..errors import InputError
-    from ..pairs import gltf_pair, make_pair, mano_pair, write_pairs
+    from ncflow.errors import InputError
+    from ncflow.pairs import gltf_pair, make_pair, mano_pair, write_pairs
 
     if args.mano and args.gltf:
         raise InputError("use either --mano or --gltf, not both")
     if args.target_resolution is not None and not args.target_resolution >= 8:
         raise InputError(f"--target-resolution must be at least 8 (got {args.target_resolution:g})")
     if args.mano:
-        from ..pairs import load_mano
+        from ncflow.pairs import load_mano
 
         model = load_mano(args.mano)
         retri = bool(args.retriangulate)
@@ -89,8 +108,9 @@ def run(args: argparse.Namespace) -> int:
         retri = bool(args.retriangulate)
         times = _pairs_of(args.times, "--times", _float)
         pairs = (
-            gltf_pair(args.gltf, a, b, args.animation, retriangulate=retri, target_resolution=args.target_resolution,
-                      seed=k)
+            gltf_pair(
+                args.gltf, a, b, args.animation, retriangulate=retri, target_resolution=args.target_resolution, seed=k
+            )
             for k, (a, b) in enumerate(times)
         )
     else:
@@ -101,8 +121,12 @@ def run(args: argparse.Namespace) -> int:
         retri = True if args.retriangulate is None else args.retriangulate
         pairs = (
             make_pair(
-                args.kind, args.seed + k, retriangulate=retri, resolution=args.resolution,
-                target_resolution=args.target_resolution, source_pose="random" if args.posed_source else "rest",
+                args.kind,
+                args.seed + k,
+                retriangulate=retri,
+                resolution=args.resolution,
+                target_resolution=args.target_resolution,
+                source_pose="random" if args.posed_source else "rest",
             )
             for k in range(args.n)
         )

@@ -20,7 +20,11 @@ def add_config_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--interp", choices=["sclerp", "slerp"], help="skeleton interpolation (default sclerp)")
     p.add_argument("--constraints", choices=["mdmm", "soft"], help="bone constraints: MDMM (default) or soft penalty")
     p.add_argument("--optimizer", choices=["adabelief", "vectoradam"], help="optimiser (default adabelief)")
-    p.add_argument("--div-free", action="store_true", help="divergence-free (volume-preserving) flow field (turns flow.skinning off)")
+    p.add_argument(
+        "--div-free",
+        action="store_true",
+        help="divergence-free (volume-preserving) flow field (turns flow.skinning off)",
+    )
     p.add_argument(
         "--set",
         action="append",
@@ -34,8 +38,8 @@ def config_from_args(args: argparse.Namespace):
     """The effective configuration: preset → file → flags → --set overrides."""
     import dataclasses
 
-    from ..config import apply_overrides, load_config, validate_config, with_metric
-    from ..errors import InputError
+    from ncflow.config import apply_overrides, load_config, validate_config, with_metric
+    from ncflow.errors import InputError
 
     cfg = load_config(args.config, args.preset)
     if args.seed is not None:
@@ -96,8 +100,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import os
 
-    from ..errors import InputError
-    from ..matcher import Matcher
+    from ncflow.errors import InputError
+    from ncflow.matcher import Matcher
 
     if os.path.isdir(args.out) and os.listdir(args.out) and not args.overwrite:
         raise InputError("output directory exists and is not empty (use --overwrite)", args.out)

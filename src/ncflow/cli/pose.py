@@ -31,7 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _parse_time(text: str | None) -> float | None:
     import math
 
-    from ..errors import InputError
+    from ncflow.errors import InputError
 
     if text is None:
         return None
@@ -66,14 +66,14 @@ def _write_all(writers: list[tuple]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..errors import InputError
-    from ..gltf import GLTF_SUFFIXES, load_gltf_skin
-    from ..mesh import MESH_SUFFIXES, save_mesh
+    from ncflow.errors import InputError
+    from ncflow.gltf import GLTF_SUFFIXES, load_gltf_skin
+    from ncflow.mesh import MESH_SUFFIXES, save_mesh
 
     if not args.file.lower().endswith(GLTF_SUFFIXES):
         raise InputError("expected a .glb or .gltf file", args.file)
     if args.list:
-        from ..gltf import gltf_animations
+        from ncflow.gltf import gltf_animations
 
         clips = gltf_animations(args.file)
         if not clips:
@@ -98,8 +98,8 @@ def run(args: argparse.Namespace) -> int:
     writers = [(args.out, lambda p: save_mesh(p, posed.vertices, posed.faces))]
     dropped: list[str] = []
     if args.skeleton_out:
-        from ..gltf import merge_zero_length_bones
-        from ..skeleton import Skeleton, save_skeleton
+        from ncflow.gltf import merge_zero_length_bones
+        from ncflow.skeleton import Skeleton, save_skeleton
 
         # joints stacked on their parent (zero-length bones) are merged, chosen in the bind pose
         # so that every pose of the file gives the same joints

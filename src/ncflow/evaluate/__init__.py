@@ -1,13 +1,13 @@
 """Evaluation: correspondence, Chamfer and distortion metrics, ground-truth readers (docs/evaluation.md)."""
 
-from .geodesics import (
+from ncflow.evaluate.geodesics import (
     GeodesicInfo,
     insert_surface_points,
     pair_geodesic_distances,
     surface_points,
     vertex_surface_points,
 )
-from .ground_truth import (
+from ncflow.evaluate.ground_truth import (
     GT_FORMATS,
     GroundTruth,
     ground_truth_from_vertex_map,
@@ -15,7 +15,7 @@ from .ground_truth import (
     read_index_file,
     save_ground_truth,
 )
-from .metrics import (
+from ncflow.evaluate.metrics import (
     TAU_MAX,
     auc,
     bone_violation,
@@ -63,7 +63,7 @@ __all__ = [
 ]
 
 # Reports (ncflow evaluate) and the benchmark runner (ncflow benchmark): appended exports.
-from .benchmark import (
+from ncflow.evaluate.benchmark import (
     ABLATIONS,
     BenchmarkResult,
     PairSpec,
@@ -71,7 +71,7 @@ from .benchmark import (
     read_pairs_csv,
     run_benchmark,
 )
-from .report import (
+from ncflow.evaluate.report import (
     Evaluation,
     evaluate_result,
     evaluation_text,

@@ -34,10 +34,10 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from ..config import Config, config_to_dict, with_metric
-from ..errors import InputError
-from .ground_truth import GT_FORMATS
-from .report import EVALUATION_FILE, run_row, write_benchmark_report
+from ncflow.config import Config, config_to_dict, with_metric
+from ncflow.errors import InputError
+from ncflow.evaluate.ground_truth import GT_FORMATS
+from ncflow.evaluate.report import EVALUATION_FILE, run_row, write_benchmark_report
 
 __all__ = [
     "ABLATIONS",
@@ -58,12 +58,25 @@ OPTIONAL_COLUMNS = ("gt_format", "dataset")
 
 # id, label, description, metric, interp, constraints (paper Table 1 rows)
 ABLATIONS = (
-    ("var-slerp-soft", "Var+SLERP+soft", "ARC-Flow style: Varifold only, world-space SLERP, soft bone constraints",
-     "varifold", "slerp", "soft"),
+    (
+        "var-slerp-soft",
+        "Var+SLERP+soft",
+        "ARC-Flow style: Varifold only, world-space SLERP, soft bone constraints",
+        "varifold",
+        "slerp",
+        "soft",
+    ),
     ("var-dq", "Var+DQ", "Varifold only, dual-quaternion ScLERP, soft bone constraints", "varifold", "sclerp", "soft"),
     ("var-dq-co", "Var+DQ+CO", "Varifold only, ScLERP, MDMM-constrained bones", "varifold", "sclerp", "mdmm"),
     ("nc-dq-co", "NC+DQ+CO", "Normal Cycles only, ScLERP, MDMM-constrained bones", "normal-cycles", "sclerp", "mdmm"),
-    ("full", "full", "Varifold then Normal Cycles, ScLERP, MDMM (the default)", "varifold+normal-cycles", "sclerp", "mdmm"),
+    (
+        "full",
+        "full",
+        "Varifold then Normal Cycles, ScLERP, MDMM (the default)",
+        "varifold+normal-cycles",
+        "sclerp",
+        "mdmm",
+    ),
 )
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 
@@ -101,7 +114,9 @@ def _parse_row(row: dict, line: int, base: Path, path: Path) -> PairSpec:
             raise InputError(f"{where}: empty {key!r}", path)
     name = values["name"]
     if not _NAME_RE.match(name):
-        raise InputError(f"{where}: pair name {name!r} must be letters, digits, '.', '_' or '-' (it names a folder)", path)
+        raise InputError(
+            f"{where}: pair name {name!r} must be letters, digits, '.', '_' or '-' (it names a folder)", path
+        )
     files = {k: _resolve(base, values[k]) for k in ("source", "target", "skeleton")}
     fmt = values["gt_format"] or None
     if fmt is not None and fmt not in GT_FORMATS:
@@ -116,7 +131,9 @@ def _parse_row(row: dict, line: int, base: Path, path: Path) -> PairSpec:
         gt = (_resolve(base, parts[0]), _resolve(base, parts[1]))
     else:
         gt = _resolve(base, values["gt"])
-    for key, file in list(files.items()) + [("gt", g) for g in ((gt,) if isinstance(gt, str) else gt) if g != "identity"]:
+    for key, file in list(files.items()) + [
+        ("gt", g) for g in ((gt,) if isinstance(gt, str) else gt) if g != "identity"
+    ]:
         if not os.path.isfile(file):
             raise InputError(f"{where}: {key} file not found: {file}", path)
     return PairSpec(name, files["source"], files["target"], files["skeleton"], gt, fmt, values["dataset"] or "default")
@@ -142,7 +159,11 @@ def read_pairs_csv(path: str | os.PathLike) -> list[PairSpec]:
                     f"missing column(s) {', '.join(missing)} (expected {', '.join(REQUIRED_COLUMNS + OPTIONAL_COLUMNS)})",
                     path,
                 )
-            rows = [(reader.line_num, row) for row in reader if any((v or "").strip() for v in row.values() if isinstance(v, str))]
+            rows = [
+                (reader.line_num, row)
+                for row in reader
+                if any((v or "").strip() for v in row.values() if isinstance(v, str))
+            ]
     except (UnicodeDecodeError, csv.Error) as exc:
         raise InputError(f"cannot read csv ({str(exc).splitlines()[0]})", path) from None
     if not rows:
@@ -170,7 +191,12 @@ class Method:
     config: Config
 
     def to_dict(self) -> dict:
-        return {"id": self.id, "label": self.label, "description": self.description, "config": config_to_dict(self.config)}
+        return {
+            "id": self.id,
+            "label": self.label,
+            "description": self.description,
+            "config": config_to_dict(self.config),
+        }
 
 
 def ablation_config(config: Config, metric: str, interp: str, constraints: str) -> Config:
@@ -215,7 +241,7 @@ def _evaluation_done(run_dir: Path) -> bool:
 
 def _match(task: RunTask) -> None:
     """Run the matcher and write the output contract (atomically) into the run folder."""
-    from ..matcher import Matcher
+    from ncflow.matcher import Matcher
 
     p = task.pair
     result = Matcher(p.source, p.target, p.skeleton, task.config, quiet=True).run()
@@ -224,11 +250,13 @@ def _match(task: RunTask) -> None:
 
 def _evaluate(task: RunTask) -> dict:
     """Evaluate the run folder against the pair's ground truth; writes evaluation.json (last) and plots."""
-    from .report import evaluate_result, write_evaluation
+    from ncflow.evaluate.report import evaluate_result, write_evaluation
 
     p = task.pair
     ev = evaluate_result(task.run_dir, p.source, p.target, p.gt, p.gt_format, geodesic_method=task.geodesic_method)
-    return write_evaluation(ev, plots=task.plots, extra={"benchmark": {"method": task.method, "pair": p.name, "dataset": p.dataset}})
+    return write_evaluation(
+        ev, plots=task.plots, extra={"benchmark": {"method": task.method, "pair": p.name, "dataset": p.dataset}}
+    )
 
 
 def run_task(task: RunTask) -> dict:
@@ -306,7 +334,9 @@ def _write_method_configs(out: Path, methods: list[Method]) -> None:
             (d / "config.json").write_text(json.dumps(m.to_dict(), indent=1) + "\n")
 
 
-def _execute(tasks: list[RunTask], jobs: int, log: Callable[[str], None], describe: Callable[[dict], str]) -> list[dict]:
+def _execute(
+    tasks: list[RunTask], jobs: int, log: Callable[[str], None], describe: Callable[[dict], str]
+) -> list[dict]:
     """Run the tasks in this process (jobs = 1) or in a spawn process pool; log each as it ends."""
     outcomes: list[dict] = []
 
@@ -350,10 +380,16 @@ def _collect_rows(tasks: list[RunTask], outcomes: dict) -> list[dict]:
     rows = []
     for t in tasks:
         run_dir = Path(t.run_dir)
-        base = {"method": t.method, "pair": t.pair.name, "dataset": t.pair.dataset,
-                "dir": str(Path("runs") / t.method / t.pair.name)}
+        base = {
+            "method": t.method,
+            "pair": t.pair.name,
+            "dataset": t.pair.dataset,
+            "dir": str(Path("runs") / t.method / t.pair.name),
+        }
         if _evaluation_done(run_dir):
-            rows.append({**base, "status": "ok", "error": None, **run_row(json.loads((run_dir / EVALUATION_FILE).read_text()))})
+            rows.append(
+                {**base, "status": "ok", "error": None, **run_row(json.loads((run_dir / EVALUATION_FILE).read_text()))}
+            )
         else:
             o = outcomes.get((t.method, t.pair.name), {})
             rows.append({**base, "status": "failed", "error": o.get("error") or "not run"})
@@ -401,7 +437,8 @@ def run_benchmark(
     _write_method_configs(out, methods)
     tasks = [
         RunTask(m.id, p, m.config, str(out / "runs" / m.id / p.name), plots, geodesic_method)
-        for p in pairs for m in methods
+        for p in pairs
+        for m in methods
     ]
     rows_so_far: dict = {}
 

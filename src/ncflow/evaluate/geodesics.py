@@ -79,7 +79,10 @@ class GeodesicInfo:
 
 
 def surface_points(
-    vertices: Float[np.ndarray, "V 3"], faces: Int[np.ndarray, "F 3"], face: Int[np.ndarray, " n"], bary: Float[np.ndarray, "n 3"]
+    vertices: Float[np.ndarray, "V 3"],
+    faces: Int[np.ndarray, "F 3"],
+    face: Int[np.ndarray, " n"],
+    bary: Float[np.ndarray, "n 3"],
 ) -> Float[np.ndarray, "n 3"]:
     """Positions Σ_k b_k x_{F[f, k]} of surface points (face, barycentric)."""
     v = np.asarray(vertices, dtype=np.float64)
@@ -196,7 +199,9 @@ def insert_surface_points(
             xy = np.stack([pts @ e1, pts @ e2], axis=1)
             simp = Delaunay(xy).simplices
             x = xy[simp]
-            area = (x[:, 1, 0] - x[:, 0, 0]) * (x[:, 2, 1] - x[:, 0, 1]) - (x[:, 1, 1] - x[:, 0, 1]) * (x[:, 2, 0] - x[:, 0, 0])
+            area = (x[:, 1, 0] - x[:, 0, 0]) * (x[:, 2, 1] - x[:, 0, 1]) - (x[:, 1, 1] - x[:, 0, 1]) * (
+                x[:, 2, 0] - x[:, 0, 0]
+            )
             simp = np.where((area < 0)[:, None], simp[:, ::-1], simp)
             ids = np.concatenate([faces[f], new_id[sel]])
             used = np.zeros(ids.size, dtype=bool)
@@ -224,7 +229,9 @@ def _exact_pairs(vertices: np.ndarray, faces: np.ndarray, face_a, bary_a, face_b
     import potpourri3d as pp3d
 
     n = face_a.size
-    v2, f2, ids = insert_surface_points(vertices, faces, np.concatenate([face_a, face_b]), np.concatenate([bary_a, bary_b]))
+    v2, f2, ids = insert_surface_points(
+        vertices, faces, np.concatenate([face_a, face_b]), np.concatenate([bary_a, bary_b])
+    )
     # drop unreferenced vertices (the solver wants every vertex in a face)
     used = np.zeros(v2.shape[0], dtype=bool)
     used[f2.reshape(-1)] = True
@@ -333,7 +340,7 @@ def pair_geodesic_distances(
         want_exact = todo
     elif method == "auto":
         if exact_below is None:
-            from ..mesh import face_areas
+            from ncflow.mesh import face_areas
 
             exact_below = 0.25 * float(np.sqrt(face_areas(v, f).sum()))
         want_exact = todo & (np.linalg.norm(pa - pb, axis=1) <= exact_below)

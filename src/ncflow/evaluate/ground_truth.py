@@ -34,9 +34,9 @@ from pathlib import Path
 import numpy as np
 from jaxtyping import Float, Int
 
-from ..errors import InputError, first_line, read_npz_arrays
-from ..mesh import Mesh
-from .geodesics import vertex_surface_points
+from ncflow.errors import InputError, first_line, read_npz_arrays
+from ncflow.evaluate.geodesics import vertex_surface_points
+from ncflow.mesh import Mesh
 
 __all__ = [
     "GroundTruth",
@@ -211,12 +211,15 @@ def _load_npz(path: Path, source: Mesh, target: Mesh, bary_tol: float) -> Ground
     if "target_index" in arrays:
         ti = arrays["target_index"]
         if ti.ndim != 1 or ti.shape[0] != face.shape[0] or not np.issubdtype(ti.dtype, np.integer):
-            raise InputError(f"array 'target_index' must be integers of shape ({face.shape[0]},), got {ti.dtype} {ti.shape}", path)
+            raise InputError(
+                f"array 'target_index' must be integers of shape ({face.shape[0]},), got {ti.dtype} {ti.shape}", path
+            )
         bad = (ti < 0) | (ti >= target.n_vertices)
         if np.any(bad):
             k = int(np.argmax(bad))
             raise InputError(
-                f"target_index entry {k} is {int(ti[k])}, out of range [0, {target.n_vertices - 1}] for the target", path
+                f"target_index entry {k} is {int(ti[k])}, out of range [0, {target.n_vertices - 1}] for the target",
+                path,
             )
         if np.unique(ti).size != ti.size:
             raise InputError("array 'target_index' lists a target vertex twice", path)
@@ -246,13 +249,16 @@ def _check_bary(bary: np.ndarray, path, tol: float) -> np.ndarray:
     b = bary.astype(np.float64)
     nan = ~np.all(np.isfinite(b), axis=1)
     if np.any(nan):
-        raise InputError(f"{int(nan.sum())} barycentric rows are NaN or infinite (first: entry {int(np.argmax(nan))})", path)
+        raise InputError(
+            f"{int(nan.sum())} barycentric rows are NaN or infinite (first: entry {int(np.argmax(nan))})", path
+        )
     s = b.sum(1)
     off = np.abs(s - 1.0) > tol
     if np.any(off):
         k = int(np.argmax(off))
         raise InputError(
-            f"barycentric coordinates of entry {k} sum to {s[k]:.6g}, not 1 (tolerance {tol:g}; {int(off.sum())} entries)", path
+            f"barycentric coordinates of entry {k} sum to {s[k]:.6g}, not 1 (tolerance {tol:g}; {int(off.sum())} entries)",
+            path,
         )
     neg = b.min(1) < -tol
     if np.any(neg):

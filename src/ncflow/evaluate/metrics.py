@@ -17,9 +17,9 @@ from __future__ import annotations
 import numpy as np
 from jaxtyping import Bool, Float, Int
 
-from ..errors import InputError
-from ..mesh import Mesh, enclosed_volume, face_areas
-from .geodesics import GeodesicInfo, pair_geodesic_distances
+from ncflow.errors import InputError
+from ncflow.evaluate.geodesics import GeodesicInfo, pair_geodesic_distances
+from ncflow.mesh import Mesh, enclosed_volume, face_areas
 
 __all__ = [
     "TAU_MAX",
@@ -341,7 +341,15 @@ def error_summary(errors: Float[np.ndarray, "..."], tau_max: float) -> dict:
     e = _finite_or_inf(raw)
     if e.size == 0:
         nan = float("nan")
-        return {"mean": nan, "median": nan, "max": nan, "auc": nan, "tau_max": float(tau_max), "n": 0, "n_nan": int(raw.size)}
+        return {
+            "mean": nan,
+            "median": nan,
+            "max": nan,
+            "auc": nan,
+            "tau_max": float(tau_max),
+            "n": 0,
+            "n_nan": int(raw.size),
+        }
     return {
         "mean": float(np.mean(e)),
         "median": float(np.median(e)),

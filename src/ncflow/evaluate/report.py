@@ -48,10 +48,10 @@ from typing import Any
 import numpy as np
 from jaxtyping import Float, Int
 
-from ..errors import InputError
-from ..mesh import Mesh
-from .ground_truth import GroundTruth
-from .metrics import TAU_MAX, pck_curve
+from ncflow.errors import InputError
+from ncflow.evaluate.ground_truth import GroundTruth
+from ncflow.evaluate.metrics import TAU_MAX, pck_curve
+from ncflow.mesh import Mesh
 
 __all__ = [
     "CURVE_METRICS",
@@ -210,14 +210,16 @@ def bone_section(metrics: dict, scale: float) -> dict | None:
         if not isinstance(b, dict):
             continue
         g_ep, g_tr = _number(b.get("g_endpoint")), _number(b.get("g_trajectory"))
-        per_bone.append({
-            "bone": b.get("bone"),
-            "g_endpoint": g_ep,
-            "g_trajectory": g_tr,
-            "ratio": float(np.nanmax([g_ep, g_tr]) / eps) if np.isfinite([g_ep, g_tr]).any() else float("nan"),
-            "rms_distance_unit_cube": _number(b.get("rms_distance_endpoint")) * scale,
-            "satisfied": b.get("satisfied"),
-        })
+        per_bone.append(
+            {
+                "bone": b.get("bone"),
+                "g_endpoint": g_ep,
+                "g_trajectory": g_tr,
+                "ratio": float(np.nanmax([g_ep, g_tr]) / eps) if np.isfinite([g_ep, g_tr]).any() else float("nan"),
+                "rms_distance_unit_cube": _number(b.get("rms_distance_endpoint")) * scale,
+                "satisfied": b.get("satisfied"),
+            }
+        )
     ratios = [b["ratio"] for b in per_bone if np.isfinite(b["ratio"])]
     max_ratio = _number(c.get("max_violation_ratio"))
     if not np.isfinite(max_ratio) and ratios:
@@ -234,9 +236,7 @@ def bone_section(metrics: dict, scale: float) -> dict | None:
     }
 
 
-def cumulative_curves(
-    arrays: dict, tau_max: dict | None = None, n_thresholds: int = _N_THRESHOLDS
-) -> dict[str, dict]:
+def cumulative_curves(arrays: dict, tau_max: dict | None = None, n_thresholds: int = _N_THRESHOLDS) -> dict[str, dict]:
     """Cumulative curves PCK(τ) of the geodesic, Chamfer and conformal errors.
 
     The Chamfer curve is the mean of the two directions' curves (its area is the mean of their
@@ -309,11 +309,11 @@ def evaluate_result(
         InputError: one line naming the file: missing or broken result files, meshes that are not
             the result's, ground truth of the wrong size or format.
     """
-    from .. import __version__
-    from ..export import read_result
-    from ..mesh import load_mesh
-    from .ground_truth import load_ground_truth
-    from .metrics import evaluate_correspondence
+    from ncflow import __version__
+    from ncflow.evaluate.ground_truth import load_ground_truth
+    from ncflow.evaluate.metrics import evaluate_correspondence
+    from ncflow.export import read_result
+    from ncflow.mesh import load_mesh
 
     t0 = time.perf_counter()
     result_dir = Path(result_dir)
@@ -323,11 +323,20 @@ def evaluate_result(
     _check_result_matches(result, src, tgt)
     truth = gt if isinstance(gt, GroundTruth) else load_ground_truth(gt, src, tgt, gt_format)
     if truth.n_target != tgt.n_vertices:
-        raise InputError(f"ground truth is for {truth.n_target} target vertices, the target has {tgt.n_vertices}", truth.name)
+        raise InputError(
+            f"ground truth is for {truth.n_target} target vertices, the target has {tgt.n_vertices}", truth.name
+        )
     out = evaluate_correspondence(
-        src, tgt, result["map_face"], result["map_bary"], truth.face, truth.bary,
-        deformed_vertices=result["deformed_source"], frames=result["frames"],
-        gt_index=truth.target_index, geodesic_method=geodesic_method,
+        src,
+        tgt,
+        result["map_face"],
+        result["map_bary"],
+        truth.face,
+        truth.bary,
+        deformed_vertices=result["deformed_source"],
+        frames=result["frames"],
+        gt_index=truth.target_index,
+        geodesic_method=geodesic_method,
     )
     summary, arrays = out["summary"], out["arrays"]
     metrics = result["metrics"]
@@ -340,7 +349,9 @@ def evaluate_result(
             "result_dir": str(result_dir),
             "source": src.name,
             "target": tgt.name,
-            "gt": truth.name if isinstance(gt, GroundTruth) else (list(map(str, gt)) if isinstance(gt, (tuple, list)) else str(gt)),
+            "gt": truth.name
+            if isinstance(gt, GroundTruth)
+            else (list(map(str, gt)) if isinstance(gt, (tuple, list)) else str(gt)),
             "gt_format": gt_format,
         },
         "n_source": src.n_vertices,
@@ -356,9 +367,7 @@ def evaluate_result(
     return Evaluation(record, arrays, src, tgt, result["map_face"], result["map_bary"], truth, result_dir)
 
 
-def write_evaluation(
-    evaluation: Evaluation, *, plots: bool = True, extra: dict | None = None
-) -> dict:
+def write_evaluation(evaluation: Evaluation, *, plots: bool = True, extra: dict | None = None) -> dict:
     """Write ``evaluation.json`` (last) and the PNG plots into the result folder.
 
     Args:
@@ -408,7 +417,11 @@ def _plot_writers(ev: Evaluation) -> dict:
     return {
         "cumulative": lambda p: plot_cumulative_curves(rec["curves"], aucs, p, title=title),
         "geodesic_error": lambda p: render_error_map(
-            ev.target.vertices, ev.target.faces, ev.arrays["geodesic"], p, vmax=TAU_MAX["geodesic"],
+            ev.target.vertices,
+            ev.target.faces,
+            ev.arrays["geodesic"],
+            p,
+            vmax=TAU_MAX["geodesic"],
             title=f"{title}: geodesic error on the target",
         ),
         "color_transfer": lambda p: render_color_transfer(
@@ -449,7 +462,9 @@ def evaluation_text(record: dict) -> str:
         )
     b = record.get("bones")
     if b:
-        state = {True: "all bones within tolerance", False: "some bones above tolerance"}.get(b.get("all_satisfied"), "")
+        state = {True: "all bones within tolerance", False: "some bones above tolerance"}.get(
+            b.get("all_satisfied"), ""
+        )
         lines.append(
             f"  bones ({b.get('mode')}): largest violation g/eps {_fmt(b['max_violation_ratio'], '.3g')}, largest RMS "
             f"distance to the rigid motion {_fmt(b['max_rms_distance_unit_cube'], '.2e')} (unit cube) {state}".rstrip()
@@ -458,7 +473,9 @@ def evaluation_text(record: dict) -> str:
         lines.append("  bones: no constraint values in metrics.json")
     if record.get("non_finite_as_null"):
         n = len(record["non_finite_as_null"])
-        lines.append(f"  note: {n} non-finite value(s) written as null in {EVALUATION_FILE} (listed under non_finite_as_null)")
+        lines.append(
+            f"  note: {n} non-finite value(s) written as null in {EVALUATION_FILE} (listed under non_finite_as_null)"
+        )
     return "\n".join(lines)
 
 
@@ -606,8 +623,16 @@ def render_color_transfer(
 # Benchmark reports
 
 _ROW_VALUES = (
-    "geodesic_auc", "chamfer_auc", "conformal_auc", "geodesic_mean", "chamfer_mean", "conformal_mean",
-    "max_bone_violation_ratio", "match_seconds", "evaluate_seconds", "wall_seconds",
+    "geodesic_auc",
+    "chamfer_auc",
+    "conformal_auc",
+    "geodesic_mean",
+    "chamfer_mean",
+    "conformal_mean",
+    "max_bone_violation_ratio",
+    "match_seconds",
+    "evaluate_seconds",
+    "wall_seconds",
 )
 _TABLE_COLUMNS = (
     ("geodesic_auc", "geodesic AUC", ".3f"),
@@ -737,7 +762,8 @@ def _markdown(report: dict, labels: dict) -> str:
         "# ncflow benchmark",
         "",
         f"Pairs: `{report['pairs_csv']}` ({report['n_pairs']} pairs). Methods: "
-        + ", ".join(f"{labels[m['id']]} (`runs/{m['id']}`)" for m in report["methods"]) + ".",
+        + ", ".join(f"{labels[m['id']]} (`runs/{m['id']}`)" for m in report["methods"])
+        + ".",
         "",
         (
             "Values are mean ± sample standard deviation across pairs. AUCs of the cumulative curves: "
@@ -749,24 +775,35 @@ def _markdown(report: dict, labels: dict) -> str:
     ]
     for ds in report["datasets"] + (["all"] if len(report["datasets"]) > 1 else []):
         entries = [e for e in report["summary"] if e["dataset"] == ds]
-        lines += [f"## {ds}", "", "| method | n | " + " | ".join(c[1] for c in _TABLE_COLUMNS) + " | bone g/ε (max) | s/pair |",
-                  "|" + "---|" * (len(_TABLE_COLUMNS) + 4)]
+        lines += [
+            f"## {ds}",
+            "",
+            "| method | n | " + " | ".join(c[1] for c in _TABLE_COLUMNS) + " | bone g/ε (max) | s/pair |",
+            "|" + "---|" * (len(_TABLE_COLUMNS) + 4),
+        ]
         for e in entries:
             cells = [_cell(e, key, spec) for key, _, spec in _TABLE_COLUMNS]
             bone = _fmt(e["max_bone_violation_ratio"]["max"], ".3g")
             n = f"{e['n']}" + (f" ({e['n_failed']} failed)" if e["n_failed"] else "")
             lines.append(
-                f"| {labels[e['method']]} | {n} | " + " | ".join(cells) + f" | {bone} | {_cell(e, 'wall_seconds', '.1f')} |"
+                f"| {labels[e['method']]} | {n} | "
+                + " | ".join(cells)
+                + f" | {bone} | {_cell(e, 'wall_seconds', '.1f')} |"
             )
         if ds in report["plots"]:
             lines += ["", f"![cumulative curves, {ds}]({report['plots'][ds]})"]
         lines.append("")
-    lines += ["## Runs", "", "| method | pair | dataset | status | geodesic AUC | Chamfer AUC | conformal AUC | bone g/ε | s |",
-              "|" + "---|" * 9]
+    lines += [
+        "## Runs",
+        "",
+        "| method | pair | dataset | status | geodesic AUC | Chamfer AUC | conformal AUC | bone g/ε | s |",
+        "|" + "---|" * 9,
+    ]
     for r in report["runs"]:
         vals = [_fmt(r.get(k), ".3f") for k in ("geodesic_auc", "chamfer_auc", "conformal_auc")]
         lines.append(
-            f"| {labels[r['method']]} | {r['pair']} | {r['dataset']} | {r['status']} | " + " | ".join(vals)
+            f"| {labels[r['method']]} | {r['pair']} | {r['dataset']} | {r['status']} | "
+            + " | ".join(vals)
             + f" | {_fmt(r.get('max_bone_violation_ratio'), '.3g')} | {_fmt(r.get('wall_seconds'), '.1f')} |"
         )
     failed = [r for r in report["runs"] if r["status"] != "ok"]
@@ -798,7 +835,7 @@ def write_benchmark_report(
     Returns:
         the report as written to ``report.json`` (strict JSON; see ``docs`` in the module docstring).
     """
-    from .. import __version__
+    from ncflow import __version__
 
     out_dir = Path(out_dir)
     labels = {m["id"]: m["label"] for m in methods}
@@ -808,7 +845,8 @@ def write_benchmark_report(
     if plots:
         for ds in datasets + (["all"] if len(datasets) > 1 else []):
             groups = {
-                m: [r for r in rows if r["method"] == m and r["status"] == "ok" and ds in ("all", r["dataset"])] for m in ids
+                m: [r for r in rows if r["method"] == m and r["status"] == "ok" and ds in ("all", r["dataset"])]
+                for m in ids
             }
             groups = {m: g for m, g in groups.items() if g}
             if not groups:

@@ -2,10 +2,10 @@
 the GSO-Net local-rotation network (DESIGN.md "Soft tissue") and the skeleton-driven field
 (:class:`SkinnedField`)."""
 
-from .fields import DivFreeFlowField, FlowField, divergence, make_flow_field
-from .gso import GSONet, rotation_angle, rotation_from_6d
-from .integrate import flow_points, hermite, integrate, time_grid
-from .skinning import SkinnedField, bone_velocities, skinning_weights
+from ncflow.flow.fields import DivFreeFlowField, FlowField, divergence, make_flow_field
+from ncflow.flow.gso import GSONet, rotation_angle, rotation_from_6d
+from ncflow.flow.integrate import flow_points, hermite, integrate, time_grid
+from ncflow.flow.skinning import SkinnedField, bone_velocities, skinning_weights
 
 __all__ = [
     "DivFreeFlowField",

@@ -78,9 +78,7 @@ def integrate(
     return jnp.concatenate([x0[None], xs]), jnp.concatenate([v0[None], vs])
 
 
-def hermite(
-    xs: Float[Array, "T N 3"], vs: Float[Array, "T N 3"], t_query: Float[Array, " Q"]
-) -> Float[Array, "Q N 3"]:
+def hermite(xs: Float[Array, "T N 3"], vs: Float[Array, "T N 3"], t_query: Float[Array, " Q"]) -> Float[Array, "Q N 3"]:
     """Cubic Hermite interpolation of grid states and slopes at times t_query ⊂ [0, 1].
 
     On [t_k, t_{k+1}] with s = (t − t_k)/h:

@@ -31,10 +31,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ..skeleton import Skeleton
-from ..skeleton.dualquat import dq_rotation, dq_translation, quat_to_matrix
-from ..skeleton.kinematics import Pose, bone_motions, rest_pose
-from .integrate import time_grid
+from ncflow.flow.integrate import time_grid
+from ncflow.skeleton import Skeleton
+from ncflow.skeleton.dualquat import dq_rotation, dq_translation, quat_to_matrix
+from ncflow.skeleton.kinematics import Pose, bone_motions, rest_pose
 
 __all__ = ["SkinnedField", "skinning_weights", "bone_velocities"]
 
@@ -90,8 +90,15 @@ class SkinnedField(eqx.Module):
     width: float = eqx.field(static=True)
     interp: str = eqx.field(static=True, default="sclerp")
 
-    def __init__(self, residual, skeleton: Skeleton, pose: Pose | None = None, width: float = 0.05,
-                 interp: str = "sclerp", dtype=jnp.float32):
+    def __init__(
+        self,
+        residual,
+        skeleton: Skeleton,
+        pose: Pose | None = None,
+        width: float = 0.05,
+        interp: str = "sclerp",
+        dtype=jnp.float32,
+    ):
         if not width > 0:
             raise ValueError(f"width must be positive, got {width}")
         self.residual = residual

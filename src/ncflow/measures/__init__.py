@@ -1,9 +1,9 @@
 """Geometric measures of surfaces: Varifolds, Normal Cycles, kernel sums and Nyström compression."""
 
-from .compression import CompressionReport, compress_normal_cycle, compress_varifold, leverage_scores
-from .kernels import kernel_matvec, kernel_self_sum, kernel_sum
-from .normal_cycles import NormalCycle, normal_cycle, normal_cycle_distance, normal_cycle_inner
-from .varifold import Varifold, varifold, varifold_distance, varifold_inner
+from ncflow.measures.compression import CompressionReport, compress_normal_cycle, compress_varifold, leverage_scores
+from ncflow.measures.kernels import kernel_matvec, kernel_self_sum, kernel_sum
+from ncflow.measures.normal_cycles import NormalCycle, normal_cycle, normal_cycle_distance, normal_cycle_inner
+from ncflow.measures.varifold import Varifold, varifold, varifold_distance, varifold_inner
 
 __all__ = [
     "CompressionReport",

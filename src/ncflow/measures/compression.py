@@ -24,10 +24,10 @@ import numpy as np
 import scipy.linalg
 from jaxtyping import Array, Float
 
-from ..errors import InputError
-from .kernels import kernel_matvec, kernel_self_sum
-from .normal_cycles import NormalCycle, _nc_features
-from .varifold import Varifold, varifold_features
+from ncflow.errors import InputError
+from ncflow.measures.kernels import kernel_matvec, kernel_self_sum
+from ncflow.measures.normal_cycles import NormalCycle, _nc_features
+from ncflow.measures.varifold import Varifold, varifold_features
 
 __all__ = ["CompressionReport", "compress_varifold", "compress_normal_cycle", "leverage_scores"]
 
@@ -82,7 +82,9 @@ def leverage_scores(
     for start in range(0, n, block_size):
         idx = perm[start : start + block_size]
         k = _gram(z[idx], z[idx])
-        inv_diag = np.diag(scipy.linalg.cho_solve(scipy.linalg.cho_factor(k + ridge * np.eye(idx.size)), np.eye(idx.size)))
+        inv_diag = np.diag(
+            scipy.linalg.cho_solve(scipy.linalg.cho_factor(k + ridge * np.eye(idx.size)), np.eye(idx.size))
+        )
         scores[idx] = 1.0 - ridge * inv_diag  # diag(K (K + λI)^{-1}) = 1 − λ diag((K + λI)^{-1})
     return np.clip(scores, 1e-12, None)
 

@@ -27,8 +27,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from ..mesh import Topology
-from .kernels import DEFAULT_BLOCK, kernel_self_sum, kernel_sum
+from ncflow.measures.kernels import DEFAULT_BLOCK, kernel_self_sum, kernel_sum
+from ncflow.mesh import Topology
 
 __all__ = ["NormalCycle", "normal_cycle", "normal_cycle_inner", "normal_cycle_distance", "safe_normalize"]
 

@@ -22,8 +22,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from .kernels import DEFAULT_BLOCK, kernel_self_sum, kernel_sum
-from .normal_cycles import safe_normalize
+from ncflow.measures.kernels import DEFAULT_BLOCK, kernel_self_sum, kernel_sum
+from ncflow.measures.normal_cycles import safe_normalize
 
 __all__ = ["Varifold", "varifold", "varifold_features", "varifold_inner", "varifold_distance"]
 
@@ -60,7 +60,7 @@ def varifold_features(
     """Scaled 6-D features and weights for which the varifold kernel is exp(−‖z − z'‖²)."""
     z = jnp.concatenate([x.centers / (math.sqrt(2.0) * sigma), x.normals / (2.0 * sigma_normal)], axis=1)
     sq = jnp.sum(x.normals * x.normals, axis=1)
-    w = x.weights * jnp.exp(sq / (4.0 * sigma_normal ** 2))
+    w = x.weights * jnp.exp(sq / (4.0 * sigma_normal**2))
     return z, w[:, None]
 
 
@@ -70,7 +70,9 @@ def varifold_inner(
     """⟨X, Y⟩ = Σ_ij a_i b_j exp(−‖c_i − c_j‖²/(2σ²)) exp(n_i·n_j/(2σ_n²))."""
     if x is y:
         return kernel_self_sum(*varifold_features(x, sigma, sigma_normal), block=block)
-    return kernel_sum(*varifold_features(x, sigma, sigma_normal), *varifold_features(y, sigma, sigma_normal), block=block)
+    return kernel_sum(
+        *varifold_features(x, sigma, sigma_normal), *varifold_features(y, sigma, sigma_normal), block=block
+    )
 
 
 def varifold_distance(

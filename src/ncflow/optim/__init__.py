@@ -1,7 +1,7 @@
 """Optimisers (cautious AdaBelief / VectorAdam), learning-rate schedules and MDMM constraints
 (DESIGN.md "Optimiser", "Constraints (MDMM)")."""
 
-from .mdmm import (
+from ncflow.optim.mdmm import (
     clamp_multipliers,
     mdmm_term,
     reverse_gradient,
@@ -9,8 +9,14 @@ from .mdmm import (
     update_multipliers,
     violation,
 )
-from .optimizers import adabelief_cautious, cautious, is_vector_array, scale_by_vector_adam, vectoradam_cautious
-from .schedules import piecewise_phases, warmup_constant, warmup_cosine
+from ncflow.optim.optimizers import (
+    adabelief_cautious,
+    cautious,
+    is_vector_array,
+    scale_by_vector_adam,
+    vectoradam_cautious,
+)
+from ncflow.optim.schedules import piecewise_phases, warmup_constant, warmup_cosine
 
 __all__ = [
     "adabelief_cautious",

@@ -1,7 +1,7 @@
 """Articulated skeletons: dual quaternions, skeleton files, forward kinematics and bone samples
 (paper §4.3 and Appendices B–C; DESIGN.md "Skeleton", "Bone samples")."""
 
-from .dualquat import (
+from ncflow.skeleton.dualquat import (
     dq_conj,
     dq_dual_conj,
     dq_exp,
@@ -36,7 +36,7 @@ from .dualquat import (
     seplerp,
     slerp,
 )
-from .kinematics import (
+from ncflow.skeleton.kinematics import (
     INTERPOLATIONS,
     Pose,
     bone_frames,
@@ -51,8 +51,8 @@ from .kinematics import (
     rest_pose,
     rigid_reference,
 )
-from .samples import BoneSamples, bone_axes, n_axis_samples, sample_bones
-from .skeleton import (
+from ncflow.skeleton.samples import BoneSamples, bone_axes, n_axis_samples, sample_bones
+from ncflow.skeleton.skeleton import (
     SKELETON_SUFFIXES,
     Skeleton,
     check_inside,

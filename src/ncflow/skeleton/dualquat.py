@@ -371,9 +371,7 @@ def dq_exp(omega: Float[ArrayLike, "... 3"], u: Float[ArrayLike, "... 3"]) -> Fl
     cos_, sinc, c3 = _trig(jnp.sum(omega * omega, axis=-1))
     wu = jnp.sum(omega * u, axis=-1)
     real = jnp.concatenate([cos_[..., None], sinc[..., None] * omega], axis=-1)
-    dual = jnp.concatenate(
-        [(-wu * sinc)[..., None], sinc[..., None] * u + (c3 * wu)[..., None] * omega], axis=-1
-    )
+    dual = jnp.concatenate([(-wu * sinc)[..., None], sinc[..., None] * u + (c3 * wu)[..., None] * omega], axis=-1)
     return jnp.concatenate([real, dual], axis=-1)
 
 

@@ -39,7 +39,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
-from .dualquat import (
+from ncflow.skeleton.dualquat import (
     dq_from_rt,
     dq_inverse,
     dq_mul,
@@ -51,7 +51,7 @@ from .dualquat import (
     sclerp,
     slerp,
 )
-from .skeleton import Skeleton
+from ncflow.skeleton.skeleton import Skeleton
 
 __all__ = [
     "Pose",

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
-from .skeleton import Skeleton
+from ncflow.skeleton.skeleton import Skeleton
 
 __all__ = ["BoneSamples", "sample_bones", "bone_axes", "n_axis_samples", "DEFAULT_SAMPLES_PER_BONE", "DEFAULT_RADIUS"]
 

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 from jaxtyping import Float, Int
 
-from ..errors import InputError, check_input_file, read_json_object
+from ncflow.errors import InputError, check_input_file, read_json_object
 
 __all__ = [
     "Skeleton",
@@ -508,10 +508,10 @@ def load_skeleton(
     suffix = check_input_file(path, "skeleton", SKELETON_SUFFIXES)
     if suffix in (".glb", ".gltf"):
         try:
-            from ..gltf import gltf_skeleton
+            from ncflow.gltf import gltf_skeleton
         except ImportError as exc:
             raise InputError(f"glTF skeletons are not available ({exc})", path) from None
-        from ..gltf import merge_zero_length_bones
+        from ncflow.gltf import merge_zero_length_bones
 
         positions, parents, names = gltf_skeleton(path, time=time, animation=animation)
         # rigs stack joints at one point; merge them (decided on the bind pose, so every time
@@ -588,7 +588,7 @@ def check_inside(
     often are, pass). Open meshes: an outside joint is reported when it is farther than
     ``far`` × diagonal from the surface.
     """
-    from ..mesh import mesh_topology
+    from ncflow.mesh import mesh_topology
 
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
