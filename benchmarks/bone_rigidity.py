@@ -32,8 +32,8 @@ def kabsch_residual(p: np.ndarray, q: np.ndarray) -> float:
 
 
 def bone_rigidity(source, target, skeleton, gt, lo: float = 0.1, hi: float = 0.9) -> list[dict]:
-    from ncflow.evaluate.geodesics import surface_points
-    from ncflow.mesh import fit_normalization
+    from ncflow.geometry.barycentric import surface_points
+    from ncflow.geometry.normalize import fit_normalization
 
     norm = fit_normalization(source.vertices, source.faces)
     p = norm.apply(surface_points(source.vertices, source.faces, gt.face, gt.bary))
@@ -75,7 +75,8 @@ def main() -> None:
         g = np.array([r["g"] for r in rows]) / args.eps
         ok = np.isfinite(g)
         print(
-            f"\n{name}: max {np.nanmax(g):.2f}, median {np.nanmedian(g):.2f}; {int(np.sum(g[ok] > 1))} of {int(ok.sum())} bones above eps"
+            f"\n{name}: max {np.nanmax(g):.2f}, median {np.nanmedian(g):.2f}; "
+            f"{int(np.sum(g[ok] > 1))} of {int(ok.sum())} bones above eps"
         )
 
 

@@ -32,8 +32,8 @@ WORKING = 40
 
 
 def _target(target_res: int):
-    from ncflow.mesh import mesh_topology
-    from ncflow.shapes import bend, capsule
+    from ncflow.geometry.topology import mesh_topology
+    from ncflow.synthetic.shapes import bend, capsule
 
     vt, ft = capsule(n_around=target_res + 1, n_along=target_res, diagonal="left")
     return bend(vt, 30.0), mesh_topology(ft)
@@ -63,9 +63,9 @@ def _case(target_res: int, source_res: int, m: int, sigma: float, repeats: int, 
     import jax.numpy as jnp
     import numpy as np
 
+    from ncflow.geometry.topology import mesh_topology
     from ncflow.measures import NormalCycle, normal_cycle, normal_cycle_inner
-    from ncflow.mesh import mesh_topology
-    from ncflow.shapes import capsule
+    from ncflow.synthetic.shapes import capsule
 
     vs, fs = capsule(n_around=source_res, n_along=source_res)
     vt, tt = _target(target_res)
@@ -171,7 +171,8 @@ def main() -> None:
             r = compressed[s, m][1]
             cells.append(
                 r.get("error")
-                or f"{s}: {r['compress_seconds']:.1f} s / {r['compress_peak_rss_mb']:.0f} MB / {r['relative_error']:.1e}"
+                or f"{s}: {r['compress_seconds']:.1f} s / {r['compress_peak_rss_mb']:.0f} MB "
+                f"/ {r['relative_error']:.1e}"
             )
         print(f"  m={m}: " + ", ".join(cells))
 

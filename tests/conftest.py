@@ -1,14 +1,28 @@
-"""Test-wide settings: float64 JAX so that references agree to 1e-6 and better.
+"""Test-wide settings: runtime checks of the jaxtyping annotations, and float64 JAX.
 
-Library code follows the dtype of its inputs; tests of float32 behaviour pass float32 arrays.
+Every function and dataclass of ``ncflow`` is checked at call time against its jaxtyping annotations (dtype,
+rank, and shape names consistent across the arguments and the return value of one call) by beartype, through
+jaxtyping's import hook. The hook rewrites the modules as they are imported, so it is installed here, before
+anything imports ``ncflow``. Set ``NCFLOW_TYPECHECK=0`` to run without it (e.g. to time the checks).
+
+float64 JAX so that references agree to 1e-6 and better. Library code follows the dtype of its inputs; tests
+of float32 behaviour pass float32 arrays.
 """
 
-import jax
+import os
+
+if os.environ.get("NCFLOW_TYPECHECK", "1") != "0":
+    from jaxtyping import install_import_hook
+
+    # beartype with PEP 484's implicit numeric tower (an int is a valid `float`, as for mypy and pyright).
+    # jaxtyping evaluates this string as `<string>(function)` after importing its first name, `beartype`.
+    install_import_hook("ncflow", "beartype.beartype(conf=beartype.BeartypeConf(is_pep484_tower=True))")
+
+import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 
 
-import os  # noqa: E402
 import tempfile  # noqa: E402
 
 # keep the tetrahedralisation cache of test runs out of the user's home

@@ -12,11 +12,11 @@ import ncflow.evaluate.benchmark as bench
 from ncflow.cli import main
 from ncflow.config import preset
 from ncflow.evaluate import ground_truth_from_vertex_map
-from ncflow.evaluate.report import aggregate_rows, mean_curve_band
-from ncflow.mesh import Mesh
-from ncflow.pairs import Pair, write_pairs
-from ncflow.shapes import bend, capsule
+from ncflow.evaluate.aggregate import aggregate_rows, mean_curve_band
+from ncflow.geometry.mesh import Mesh
 from ncflow.skeleton import Skeleton
+from ncflow.synthetic.pairs import Pair, write_pairs
+from ncflow.synthetic.shapes import bend, capsule
 
 # a tiny configuration: one data term (one compiled step), small nets, few samples, 20 steps
 TINY = [
@@ -70,7 +70,9 @@ def pairs_csv(tmp_path_factory):
     source = Mesh(vs, fs, "capsule")
     skel = Skeleton.from_arrays(np.array([[0, 0, -1.6], [0, 0, 0.0], [0, 0, 1.6]]), np.array([-1, 0, 1]))
     gt = ground_truth_from_vertex_map(np.arange(len(vs)), source, len(vs))
-    pairs = [Pair(f"bend_{a}", source, Mesh(bend(vs, a), fs, f"bend_{a}"), skel, gt, "capsule") for a in (50, 80)]
+    pairs = [
+        Pair(f"bend_{a}", source, Mesh(bend(vs, float(a)), fs, f"bend_{a}"), skel, gt, "capsule") for a in (50, 80)
+    ]
     return write_pairs(pairs, tmp_path_factory.mktemp("pairs"))
 
 

@@ -7,20 +7,20 @@ import numpy as np
 import pytest
 import trimesh
 
-from ncflow.characters import (
-    DEFAULT_RESOLUTION,
-    KINDS,
-    character_sdf,
-    check_closed_surface,
-    forward_kinematics_np,
+from ncflow.errors import InputError
+from ncflow.geometry.mesh import validate_mesh
+from ncflow.geometry.remesh import check_closed_surface, euler_characteristic
+from ncflow.geometry.winding import signed_volume
+from ncflow.geometry.winding import winding_numbers as geometry_winding_numbers
+from ncflow.skeleton import Pose, check_inside, forward_kinematics, joint_positions
+from ncflow.synthetic.bodies import DEFAULT_RESOLUTION, KINDS, character_sdf
+from ncflow.synthetic.characters import (
     make_character,
     pose_character,
     pose_from_rotvecs,
+    pose_world_transforms,
     random_pose,
 )
-from ncflow.errors import InputError
-from ncflow.mesh import validate_mesh
-from ncflow.skeleton import Pose, check_inside, forward_kinematics, joint_positions
 
 N_BONES = {"humanoid": 21, "hand": 20, "quadruped": 24}
 LIMBS = {  # bones (named by their end joint) of limb segments that have a middle of their own
@@ -123,6 +123,28 @@ def test_skeleton_inside(characters, kind):
     assert np.all(character_sdf(ch.spec, sk.positions) < 0)
 
 
+def test_winding_numbers_signed_volume_and_euler_characteristic(characters):
+    ch = characters["hand"]
+    v, f = ch.vertices, ch.faces
+    rng = np.random.default_rng(0)
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    points = np.concatenate([ch.skeleton.positions, rng.uniform(lo - 0.02, hi + 0.02, size=(60, 3))])
+    reference = winding_numbers(points, v, f)  # the brute-force formula above, all at once
+    for chunk in (1, 50_000, 200_000):  # chunking does not change a bit
+        np.testing.assert_array_equal(geometry_winding_numbers(points, v[f], chunk=chunk), reference)
+    inside = character_sdf(ch.spec, points) < -1e-3 * ch.spec.size
+    outside = character_sdf(ch.spec, points) > 1e-3 * ch.spec.size
+    np.testing.assert_allclose(reference[inside], 1.0, atol=1e-6)
+    np.testing.assert_allclose(reference[outside], 0.0, atol=1e-6)
+    m = trimesh.Trimesh(v, f, process=False)
+    assert signed_volume(v, f) == pytest.approx(m.volume, rel=1e-12)
+    assert signed_volume(v, f[:, ::-1]) == pytest.approx(-m.volume, rel=1e-12)
+    # V - E + F counted by hand: a sphere; a disk once a fan of faces is cut out
+    edges = np.unique(np.sort(f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+    assert euler_characteristic(v, f) == v.shape[0] - edges.shape[0] + f.shape[0] == 2
+    assert euler_characteristic(v, f[np.all(f != 0, axis=1)]) == 1
+
+
 def test_skeleton_structure(characters):
     hand = characters["hand"].skeleton
     # MANO-like: wrist, 5 fingers × 3 joints, 5 tips; every finger is a chain of 4 bones
@@ -174,7 +196,7 @@ def test_fk_matches_dual_quaternion_fk(characters, kind):
 
     ch = characters[kind]
     pose, _ = random_pose(ch, 5)
-    _, t = forward_kinematics_np(ch.skeleton.positions, ch.skeleton.parents, pose)
+    t = pose_world_transforms(ch.skeleton.positions, ch.skeleton.parents, pose)[:, :3, 3]
     world = forward_kinematics(ch.skeleton, Pose(jnp.asarray(pose.rotations), jnp.asarray(pose.translation)))
     np.testing.assert_allclose(t, np.asarray(joint_positions(world)), atol=1e-12)
     posed = pose_character(ch, pose)

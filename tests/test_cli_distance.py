@@ -6,8 +6,10 @@ import numpy as np
 import pytest
 
 from ncflow.cli import main
+from ncflow.geometry.normalize import fit_normalization
+from ncflow.geometry.topology import mesh_topology
+from ncflow.io.meshes import load_mesh
 from ncflow.measures import normal_cycle, normal_cycle_distance, varifold, varifold_distance
-from ncflow.mesh import fit_normalization, load_mesh, mesh_topology
 
 
 @pytest.fixture(scope="module")

@@ -9,10 +9,13 @@ import pytest
 from matplotlib.image import imread
 
 from ncflow.cli import main
-from ncflow.evaluate.report import EVALUATION_FILE, EVALUATION_PLOTS, json_safe
-from ncflow.export import correspondence_maps, write_result
-from ncflow.mesh import save_mesh
-from ncflow.shapes import capsule
+from ncflow.evaluate.plots import EVALUATION_PLOTS
+from ncflow.evaluate.score import EVALUATION_FILE
+from ncflow.io.arrays import json_safe
+from ncflow.io.meshes import save_mesh
+from ncflow.io.result import write_result
+from ncflow.match.correspondence import correspondence_maps
+from ncflow.synthetic.shapes import capsule
 
 EPS = 3e-4
 BONE = {

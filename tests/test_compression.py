@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from ncflow.errors import InputError
+from ncflow.geometry.topology import mesh_topology
 from ncflow.measures import (
     compress_normal_cycle,
     compress_varifold,
@@ -15,8 +16,7 @@ from ncflow.measures import (
     varifold_distance,
     varifold_inner,
 )
-from ncflow.mesh import mesh_topology
-from ncflow.shapes import sphere
+from ncflow.synthetic.shapes import sphere
 
 
 @pytest.fixture(scope="module")

@@ -16,20 +16,19 @@ import pygltflib
 import pytest
 import trimesh
 
-import ncflow.export as export
-from ncflow.errors import InputError
-from ncflow.export import (
+import ncflow.io.result as export
+from ncflow.errors import InputError, ResultError
+from ncflow.io.gltf.writer import write_animation_glb
+from ncflow.io.meshes import load_mesh
+from ncflow.io.result import (
     CONTRACT_FILES,
-    ResultError,
-    correspondence_maps,
     read_result,
     read_skeleton_frames_json,
-    write_animation_glb,
     write_frames,
     write_result,
     write_skeleton_frames_json,
 )
-from ncflow.mesh import load_mesh
+from ncflow.match.correspondence import correspondence_maps
 from ncflow.skeleton import Skeleton, load_skeleton
 
 
@@ -152,7 +151,7 @@ def test_glb_morph_animation(tmp_path, sphere):
     frames = frames + 0.05 * rng.standard_normal(frames.shape)  # non-rigid too
     frames[0] = rest
     skel = np.stack([np.array([[0.0, 0, 0], [0, 1, 0], [0, 2, 0]]) + k * 0.1 for k in range(4)])
-    path = write_animation_glb(tmp_path / "a.glb", frames, faces, times, skel, [-1, 0, 1])
+    path = write_animation_glb(tmp_path / "a.glb", frames, faces, times, skel, np.array([-1, 0, 1]))
     gltf = pygltflib.GLTF2().load_binary(str(path))
     assert gltf.asset.version == "2.0"
     prim = gltf.meshes[0].primitives[0]
@@ -198,7 +197,7 @@ def test_glb_rejects_bad_times(tmp_path, sphere):
     rest, faces = sphere
     frames, _ = _frames(rest, 3)
     with pytest.raises(ResultError, match="strictly increasing"):
-        write_animation_glb(tmp_path / "a.glb", frames, faces, [0.0, 0.5, 0.5])
+        write_animation_glb(tmp_path / "a.glb", frames, faces, np.array([0.0, 0.5, 0.5]))
     assert not (tmp_path / "a.glb").exists()
 
 
@@ -440,13 +439,13 @@ def test_read_result_names_bad_files(tmp_path, sphere):
 
 def test_skeleton_frames_json_round_trip(tmp_path):
     pos = np.arange(2 * 3 * 3, dtype=np.float64).reshape(2, 3, 3)
-    write_skeleton_frames_json(tmp_path / "s.json", pos, [-1, 0, 1], None, [0.0, 1.0])
+    write_skeleton_frames_json(tmp_path / "s.json", pos, np.array([-1, 0, 1]), None, np.array([0.0, 1.0]))
     back = read_skeleton_frames_json(tmp_path / "s.json")
     np.testing.assert_array_equal(back["positions"], pos)
     np.testing.assert_array_equal(back["parents"], [-1, 0, 1])
     assert back["names"] is None and back["times"].tolist() == [0.0, 1.0]
     with pytest.raises(ResultError, match="expected 3 joint names"):
-        write_skeleton_frames_json(tmp_path / "t.json", pos, [-1, 0, 1], ["a"], [0.0, 1.0])
+        write_skeleton_frames_json(tmp_path / "t.json", pos, np.array([-1, 0, 1]), ["a"], np.array([0.0, 1.0]))
 
 
 def test_failed_swap_restores_previous_result(tmp_path, sphere, monkeypatch):

@@ -17,8 +17,8 @@ from ncflow.flow import (
     make_flow_field,
     time_grid,
 )
-from ncflow.mesh import enclosed_volume
-from ncflow.shapes import sphere
+from ncflow.geometry.mesh import enclosed_volume
+from ncflow.synthetic.shapes import sphere
 
 KEY = jax.random.key(0)
 

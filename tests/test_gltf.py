@@ -34,15 +34,10 @@ import pytest
 
 from ncflow.cli import main
 from ncflow.errors import InputError
-from ncflow.gltf import (
-    gltf_animations,
-    gltf_skeleton,
-    interpolate_keyframes,
-    load_gltf_skin,
-    merge_zero_length_bones,
-    pose_gltf,
-    quat_to_matrix,
-)
+from ncflow.geometry.rigid import quat_to_matrix
+from ncflow.geometry.skeleton import merge_zero_length_bones
+from ncflow.io.gltf.animation import gltf_animations, interpolate_keyframes
+from ncflow.io.gltf.skins import gltf_skeleton, load_gltf_skin, pose_gltf
 
 AXIS = np.array([1.0, 2.0, 2.0]) / 3.0
 ANGLE = math.radians(120.0)
@@ -305,7 +300,7 @@ def test_slerp_differs_from_normalised_lerp(arm_glb):
     np.testing.assert_allclose(q, _quat(AXIS, ANGLE / 4), atol=1e-12)
     nlerp = 0.75 * np.array([0, 0, 0, 1.0]) + 0.25 * np.array(_quat(AXIS, ANGLE))
     assert abs(2 * math.acos(nlerp[3] / np.linalg.norm(nlerp)) - ANGLE / 4) > 0.03
-    np.testing.assert_allclose(quat_to_matrix(q), _rodrigues(AXIS, ANGLE / 4), atol=1e-12)
+    np.testing.assert_allclose(quat_to_matrix(q, scalar_first=False), _rodrigues(AXIS, ANGLE / 4), atol=1e-12)
 
 
 def test_time_is_clamped_to_the_clip(arm_glb):
@@ -375,18 +370,34 @@ def test_explicit_joint_rotations(arm_glb):
         pose_gltf(arm_glb, joint_rotations=np.zeros((2, 4)) + 1)
 
 
+def _file_order(skeleton):
+    """(positions, parents, names) of a skeleton in the order of the joint list it was built from."""
+    internal = np.argsort(skeleton.file_index)  # internal index of the i-th listed joint
+    parents = skeleton.parents[internal]
+    parents = np.where(parents < 0, -1, skeleton.file_index[np.maximum(parents, 0)])
+    return skeleton.positions[internal], parents, [skeleton.names[i] for i in internal]
+
+
 def test_gltf_skeleton_matches_hierarchy(arm_glb):
-    pos, parents, names = gltf_skeleton(arm_glb)
+    skel, keep = gltf_skeleton(arm_glb)
+    np.testing.assert_array_equal(keep, [0, 1, 2])  # no stacked joints: all kept
+    pos, parents, names = _file_order(skel)
     assert names == ["elbow", "shoulder", "wrist"]
     np.testing.assert_array_equal(parents, [1, -1, 0])  # the helper node between shoulder and elbow is skipped
     np.testing.assert_allclose(pos, [ELBOW, SHOULDER, WRIST], atol=1e-6)
-    pos, parents, _ = gltf_skeleton(arm_glb, time=1.0, animation="bend")
+    assert skel.name == str(arm_glb) and skel.label(0) == "joint 1 ('shoulder')"
+    pos, parents, _ = _file_order(gltf_skeleton(arm_glb, time=1.0, animation="bend")[0])
     r = _rodrigues(AXIS, ANGLE)
     np.testing.assert_allclose(
         pos, [ELBOW + [0, 1, 0], SHOULDER + [0, 1, 0], ELBOW + [0, 1, 0] + r @ [1.0, 0, 0]], atol=1e-6
     )
+    # a skin already read gives the same skeleton
+    rig = load_gltf_skin(arm_glb)
+    again = gltf_skeleton(rig, time=1.0, animation="bend", name="arm")[0]
+    np.testing.assert_array_equal(_file_order(again)[0], pos)
+    assert again.name == "arm"
     # skin 1 = [elbow, wrist, prop]: two joints without joint ancestor; prop is higher in the tree
-    pos, parents, names = gltf_skeleton(arm_glb, skin=1)
+    pos, parents, names = _file_order(gltf_skeleton(arm_glb, skin=1, merge=False)[0])
     assert names == ["elbow", "wrist", "prop"]
     np.testing.assert_array_equal(parents, [2, 0, -1])
     np.testing.assert_allclose(pos, [ELBOW, WRIST, [0, 3, 0.5]], atol=1e-6)
@@ -501,7 +512,8 @@ def test_cli_skeleton_out(arm_glb, tmp_path):
 def test_load_skeleton_and_convert_from_glb(arm_glb, tmp_path):
     from ncflow.skeleton import load_skeleton
 
-    pos, parents, names = gltf_skeleton(arm_glb, time=1.0, animation="bend")
+    rig = load_gltf_skin(arm_glb)
+    pos, parents, names = rig.joint_world(1.0, "bend")[:, :3, 3], rig.parents, rig.names
     skel = load_skeleton(arm_glb, time=1.0, animation="bend")
     by_name = {n: p for n, p in zip(names, pos)}
     assert set(skel.names) == set(names) and skel.parents[0] == -1

@@ -11,8 +11,8 @@ from ncflow.evaluate import (
     save_ground_truth,
     surface_points,
 )
-from ncflow.mesh import Mesh
-from ncflow.shapes import sphere
+from ncflow.geometry.mesh import Mesh
+from ncflow.synthetic.shapes import sphere
 
 
 @pytest.fixture

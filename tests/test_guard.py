@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from ncflow.matcher import DivergenceGuard
+from ncflow.match.guard import DivergenceGuard
 
 
 def _feed(guard, values, start=0):

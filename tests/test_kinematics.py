@@ -47,10 +47,12 @@ def random_pose(seed, max_angle=2.5, translation=True):
     return Pose(jnp.asarray(q), jnp.asarray(s)), rot, s
 
 
-def affine(r=np.eye(3), t=np.zeros(3)):
+def affine(r=None, t=None):
     m = np.eye(4)
-    m[:3, :3] = r
-    m[:3, 3] = t
+    if r is not None:
+        m[:3, :3] = r
+    if t is not None:
+        m[:3, 3] = t
     return m
 
 

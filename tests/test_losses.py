@@ -9,6 +9,7 @@ import pytest
 
 from ncflow.flow import FlowField, GSONet, flow_points, integrate, rotation_angle, rotation_from_6d
 from ncflow.flow.gso import IDENTITY_6D
+from ncflow.geometry.topology import mesh_topology
 from ncflow.losses import (
     arap_energy,
     bone_constraints,
@@ -22,8 +23,7 @@ from ncflow.losses import (
     tissue_frame_energy,
     tissue_stencil,
 )
-from ncflow.mesh import mesh_topology
-from ncflow.shapes import sphere
+from ncflow.synthetic.shapes import sphere
 
 T = 5
 TS = np.linspace(0.0, 1.0, T)

@@ -10,11 +10,12 @@ from ncflow.cli import main
 from ncflow.config import apply_overrides, preset
 from ncflow.errors import InputError
 from ncflow.evaluate import auc, closest_points_on_surface, geodesic_errors
-from ncflow.export import read_result
-from ncflow.matcher import Matcher, match
-from ncflow.mesh import Mesh, save_mesh
-from ncflow.shapes import bend, capsule
+from ncflow.geometry.mesh import Mesh
+from ncflow.io.meshes import save_mesh
+from ncflow.io.result import read_result
+from ncflow.match.matcher import Matcher, match
 from ncflow.skeleton import Skeleton, save_skeleton
+from ncflow.synthetic.shapes import bend, capsule
 
 BEND = 70.0
 
@@ -221,7 +222,7 @@ def test_nan_during_training_is_reported_not_written(tmp_path, pair):
     src, tgt, skel, *_ = pair
     cfg = small_config(steps=(3, 0))
     cfg = dataclasses.replace(cfg, phases=tuple(dataclasses.replace(p, lr=1e30) for p in cfg.phases))
-    from ncflow.matcher import TrainingError
+    from ncflow.match.matcher import TrainingError
 
     with pytest.raises(TrainingError, match="non-finite"):
         Matcher(src, tgt, skel, cfg, quiet=True).run()

@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from ncflow.geometry.topology import mesh_topology
 from ncflow.measures import (
     kernel_self_sum,
     kernel_sum,
@@ -17,8 +18,7 @@ from ncflow.measures import (
     varifold_distance,
     varifold_inner,
 )
-from ncflow.mesh import mesh_topology
-from ncflow.shapes import bend, capsule, rounded_box, sphere, tube
+from ncflow.synthetic.shapes import bend, capsule, rounded_box, sphere, tube
 
 # ------------------------------------------------------------------------------------------
 # independent references, written from the definitions (no code shared with the package)

@@ -5,17 +5,11 @@ import pytest
 import trimesh
 
 from ncflow.errors import InputError
-from ncflow.mesh import (
-    close_boundary,
-    enclosed_volume,
-    fit_normalization,
-    load_mesh,
-    mesh_topology,
-    save_mesh,
-    validate_mesh,
-    weld_vertices,
-)
-from ncflow.shapes import capsule, sphere, tube
+from ncflow.geometry.mesh import enclosed_volume, validate_mesh, weld_vertices
+from ncflow.geometry.normalize import fit_normalization
+from ncflow.geometry.topology import close_boundary, mesh_topology
+from ncflow.io.meshes import load_mesh, save_mesh
+from ncflow.synthetic.shapes import capsule, sphere, tube
 
 TRI = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\n"
 
@@ -35,7 +29,8 @@ def write(tmp_path, name, text):
         (
             "quad.ply",
             "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
-            "element face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3\n",
+            "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+            "0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3\n",
             "non-triangular",
         ),
         ("nan.obj", "v 0 0 nan\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "NaN or infinite"),

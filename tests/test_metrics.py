@@ -25,8 +25,8 @@ from ncflow.evaluate import (
     vertex_surface_points,
     volume_change,
 )
-from ncflow.mesh import Mesh, face_areas
-from ncflow.shapes import capsule, sphere
+from ncflow.geometry.mesh import Mesh, face_areas
+from ncflow.synthetic.shapes import capsule, sphere
 
 
 def grid(n=9, size=2.0):

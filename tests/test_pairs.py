@@ -5,10 +5,12 @@ and ``ncflow make-pairs`` files that re-load."""
 from __future__ import annotations
 
 import csv
+import json
 import math
 import pickle
 import sys
 import types
+from pathlib import Path
 
 import numpy as np
 import pygltflib
@@ -16,23 +18,29 @@ import pytest
 import scipy.sparse
 import trimesh
 
-from ncflow.characters import KINDS, check_closed_surface, make_character, pose_character
 from ncflow.cli import main
 from ncflow.errors import InputError
 from ncflow.evaluate import closest_points_on_surface, load_ground_truth, surface_points
-from ncflow.mesh import load_mesh, mesh_topology, validate_mesh
-from ncflow.pairs import (
-    gltf_pair,
-    load_mano,
-    make_pair,
+from ncflow.geometry.mesh import validate_mesh
+from ncflow.geometry.remesh import check_closed_surface, retriangulate_mesh
+from ncflow.geometry.rigid import quat_to_matrix
+from ncflow.geometry.topology import mesh_topology
+from ncflow.io.mano import load_mano
+from ncflow.io.meshes import load_mesh
+from ncflow.skeleton import load_skeleton
+from ncflow.synthetic.bodies import KINDS
+from ncflow.synthetic.characters import make_character, pose_character
+from ncflow.synthetic.gltf import gltf_pair
+from ncflow.synthetic.mano import (
+    MANO_TIP_VERTICES,
     mano_finger_pose,
+    mano_flexion_axes,
     mano_forward,
     mano_pair,
-    retriangulate_mesh,
-    write_pairs,
 )
-from ncflow.shapes import capsule
-from ncflow.skeleton import load_skeleton
+from ncflow.synthetic.motion import target_motion
+from ncflow.synthetic.pairs import MOTION_CSV_COLUMNS, PAIRS_CSV_COLUMNS, make_pair, write_pairs
+from ncflow.synthetic.shapes import capsule
 
 
 @pytest.fixture(scope="module")
@@ -470,6 +478,18 @@ def test_gltf_pair(tmp_path):
     assert pair.skeleton.n_joints == 3 and pair.info["merged_joints"] == 1
     np.testing.assert_allclose(pair.skeleton.positions, [[0, 0, -1.0], [0, 0, 0], [0, 0, 1.0]], atol=1e-12)
     np.testing.assert_allclose(pair.target_joints[2], [0, -1.0, 0], atol=1e-6)
+    # load_skeleton and ``ncflow pose --skeleton-out`` merge the same joints (one shared function)
+    for t, joints in [(0.0, pair.skeleton.positions), (1.0, pair.target_joints)]:
+        loaded = load_skeleton(path, time=t)
+        assert loaded.names == pair.skeleton.names
+        np.testing.assert_array_equal(loaded.parents, pair.skeleton.parents)
+        np.testing.assert_array_equal(loaded.positions, joints)
+        out = tmp_path / f"pose_{t:g}"
+        args = ["pose", str(path), "--time", str(t), "--out", str(out / "m.ply"), "--skeleton-out", str(out / "s.json")]
+        assert main(args) == 0
+        written = load_skeleton(out / "s.json")
+        assert written.names == pair.skeleton.names
+        np.testing.assert_allclose(written.positions, joints, atol=1e-15)
 
     retri = gltf_pair(path, 0.0, 1.0, retriangulate=True, target_resolution=24)
     assert retri.target.n_vertices != pair.target.n_vertices
@@ -519,10 +539,9 @@ def test_cli_procedural_pairs_reload(built, tmp_path):
     np.testing.assert_array_equal(tsk.positions, ref.target_joints)
 
 
-def test_cli_mano_and_gltf(tmp_path, mano_npz):
-    out = tmp_path / "mano"
+def write_padded_fake_mano(tmp_path):
+    """The fake model padded to 745 vertices (the CLI uses MANO's tip vertices 320 … 744); returns its path."""
     arr = fake_mano_arrays()
-    # the CLI uses MANO's tip vertices (320 … 744): pad the fake model to 745 vertices
     big = dict(arr)
     n_pad = 745 - arr["v_template"].shape[0]
     rng = np.random.default_rng(1)
@@ -535,6 +554,13 @@ def test_cli_mano_and_gltf(tmp_path, mano_npz):
     big["faces"] = np.stack([np.arange(nv - 2), np.arange(1, nv - 1), np.arange(2, nv)], axis=1)
     model = tmp_path / "mano_big.npz"
     np.savez(model, **big)
+    return model
+
+
+def test_cli_mano_and_gltf(tmp_path, mano_npz):
+    out = tmp_path / "mano"
+    model = write_padded_fake_mano(tmp_path)
+    nv = 745
     assert main(["make-pairs", str(out), "--mano", str(model), "--poses", "0,1,1,2", "--format", "obj"]) == 0
     rows = read_rows(out / "pairs.csv")
     assert [r["name"] for r in rows] == ["mano_0_1", "mano_1_2"]
@@ -572,3 +598,282 @@ def test_write_pairs_layout(built, tmp_path):
         assert tgt.n_vertices == p.target.n_vertices and sk.n_joints == p.skeleton.n_joints
         np.testing.assert_allclose(gt.bary, p.ground_truth.bary, atol=1e-15)
         np.testing.assert_allclose(tgt.vertices, p.target.vertices, rtol=1e-6, atol=1e-6)  # OBJ text precision
+
+
+# ----------------------------------------------------------------------------------------------
+# targets turned and moved
+
+
+def rotation_angle_deg(r):
+    """Angle of a rotation matrix from its trace."""
+    return math.degrees(math.acos(np.clip((np.trace(r) - 1.0) / 2.0, -1.0, 1.0)))
+
+
+def assert_moved_copy(moved, plain, angle_deg=None, shift_frac=None):
+    """``moved`` is ``plain`` with its target turned and moved: target vertices and joints are
+    R · (unmoved) + t to 1e-12, everything else (source, skeleton, faces, ground truth) identical."""
+    m = moved.info["target_motion"]
+    r, t = m["rotation"], m["translation"]
+    np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-14)
+    assert np.linalg.det(r) == pytest.approx(1.0, abs=1e-14)
+    np.testing.assert_allclose(r @ m["axis"], m["axis"], atol=1e-14)  # turns about its axis
+    size = np.abs(plain.target.vertices).max()
+    np.testing.assert_allclose(moved.target.vertices, plain.target.vertices @ r.T + t, rtol=0, atol=1e-12 * size)
+    np.testing.assert_allclose(moved.target_joints, plain.target_joints @ r.T + t, rtol=0, atol=1e-12 * size)
+    np.testing.assert_array_equal(moved.target.faces, plain.target.faces)
+    np.testing.assert_array_equal(moved.ground_truth.face, plain.ground_truth.face)
+    np.testing.assert_array_equal(moved.ground_truth.bary, plain.ground_truth.bary)
+    np.testing.assert_array_equal(moved.source.vertices, plain.source.vertices)
+    np.testing.assert_array_equal(moved.source.faces, plain.source.faces)
+    np.testing.assert_array_equal(moved.skeleton.positions, plain.skeleton.positions)
+    assert not np.allclose(moved.target.vertices, plain.target.vertices)
+    if angle_deg is not None:
+        assert rotation_angle_deg(r) == pytest.approx(angle_deg, abs=1e-6)
+        assert m["angle_deg"] == pytest.approx(angle_deg, abs=1e-12)
+    if shift_frac is not None:  # turned about its centroid, which moves by the shift
+        diag = np.linalg.norm(np.ptp(plain.source.vertices, axis=0))
+        centre_move = moved.target.vertices.mean(axis=0) - plain.target.vertices.mean(axis=0)
+        np.testing.assert_allclose(centre_move, m["shift"], rtol=0, atol=1e-12 * size)
+        assert np.linalg.norm(m["shift"]) == pytest.approx(shift_frac * diag, rel=1e-12)
+
+
+def test_procedural_target_turned_and_moved(built):
+    ch, plain, same = built["hand"]
+    moved = make_pair("hand", 0, character=ch, target_rotation=90.0, target_translation=0.3)
+    assert_moved_copy(moved, plain, angle_deg=90.0, shift_frac=0.3)
+    # the ground truth is still exact: every target vertex is R · (Σ bary · posed source) + t
+    m = moved.info["target_motion"]
+    assert_exact(moved, pose_character(ch, moved.info["pose_b"]).vertices @ m["rotation"].T + m["translation"])
+    # reproducible from the seed
+    again = make_pair("hand", 0, character=ch, target_rotation=90.0, target_translation=0.3)
+    np.testing.assert_array_equal(again.target.vertices, moved.target.vertices)
+    # same connectivity, an angle range, rotation only
+    turned = make_pair("hand", 0, retriangulate=False, character=ch, target_rotation=(30.0, 60.0))
+    assert_moved_copy(turned, same, shift_frac=0.0)
+    assert 30.0 <= rotation_angle_deg(turned.info["target_motion"]["rotation"]) <= 60.0
+    # zero motion: no motion at all, the plain pair
+    still = make_pair("hand", 0, retriangulate=False, character=ch, target_rotation=0.0, target_translation=0)
+    assert "target_motion" not in still.info
+    np.testing.assert_array_equal(still.target.vertices, same.target.vertices)
+
+
+def test_target_motion_draws():
+    c = np.array([1.0, 2.0, 3.0])
+    assert target_motion(0, None, None, c, 1.0) is None and target_motion(0, 0.0, 0.0, c, 1.0) is None
+    a, b, other = (target_motion(s, 180.0, 0.5, c, 2.0) for s in (7, 7, 8))
+    for key in ("rotation", "translation", "axis", "shift"):
+        np.testing.assert_array_equal(a[key], b[key])
+    assert not np.allclose(a["axis"], other["axis"])
+    np.testing.assert_allclose(a["rotation"], 2.0 * np.outer(a["axis"], a["axis"]) - np.eye(3), atol=1e-12)  # 180°
+    np.testing.assert_allclose(a["rotation"] @ c + a["translation"], c + a["shift"], atol=1e-14)
+    assert np.linalg.norm(a["shift"]) == pytest.approx(1.0, rel=1e-12)
+    # uniform ranges
+    draws = [target_motion(s, (10.0, 20.0), (0.1, 0.2), c, 1.0) for s in range(20)]
+    assert all(10.0 <= d["angle_deg"] <= 20.0 and 0.1 <= np.linalg.norm(d["shift"]) <= 0.2 for d in draws)
+    for bad in (181.0, -1.0, (20.0, 10.0), float("nan")):
+        with pytest.raises(InputError, match="target rotation"):
+            target_motion(0, bad, None, c, 1.0)
+    with pytest.raises(InputError, match="target translation"):
+        target_motion(0, None, -0.5, c, 1.0)
+
+
+def test_mano_and_gltf_targets_turned_and_moved(mano_npz, tmp_path):
+    plain = mano_pair(mano_npz, 0, 1, tip_vertices=TIPS)
+    moved = mano_pair(mano_npz, 0, 1, tip_vertices=TIPS, target_rotation=180.0, target_translation=1.0, seed=2)
+    assert_moved_copy(moved, plain, angle_deg=180.0, shift_frac=1.0)
+    path = tmp_path / "arm.glb"
+    write_bending_capsule(path)
+    for retri in (False, True):
+        plain = gltf_pair(path, 0.0, 1.0, retriangulate=retri, target_resolution=24, seed=3)
+        moved = gltf_pair(
+            path,
+            0.0,
+            1.0,
+            retriangulate=retri,
+            target_resolution=24,
+            seed=3,
+            target_rotation=45,
+            target_translation=0.2,
+        )
+        assert_moved_copy(moved, plain, angle_deg=45.0, shift_frac=0.2)
+
+
+def test_cli_moved_targets(built, tmp_path):
+    from ncflow.evaluate.benchmark import read_pairs_csv
+
+    out = tmp_path / "moved"
+    args = ["make-pairs", str(out), "--kind", "hand", "--target-rotation", "90", "--target-translation", "0.3"]
+    assert main(args) == 0
+    with open(out / "pairs.csv", newline="") as fh:
+        reader = csv.DictReader(fh)
+        assert reader.fieldnames == list(PAIRS_CSV_COLUMNS + MOTION_CSV_COLUMNS)
+        (row,) = list(reader)
+    assert row["target_rotation_deg"] == "90" and row["target_motion"] == "pair_000/target_motion.json"
+    motion = json.loads((out / row["target_motion"]).read_text())
+    r, t = np.array(motion["rotation"]), np.array(motion["translation"])
+    _, plain, _ = built["hand"]
+    tgt = load_mesh(out / row["target"])
+    np.testing.assert_allclose(tgt.vertices, plain.target.vertices @ r.T + t, rtol=0, atol=1e-12)
+    tsk = load_skeleton(out / "pair_000" / "target_skeleton.tgf")
+    np.testing.assert_allclose(tsk.positions, plain.target_joints @ r.T + t, rtol=0, atol=1e-12)
+    gt = load_ground_truth(out / row["gt"], load_mesh(out / row["source"]), tgt, fmt="npz")
+    np.testing.assert_array_equal(gt.face, plain.ground_truth.face)
+    (spec,) = read_pairs_csv(out / "pairs.csv")  # the benchmark reads the extra columns fine
+    assert spec.name == "hand_000"
+    assert main(["make-pairs", str(tmp_path / "x"), "--target-rotation", "200"]) == 2
+    assert main(["make-pairs", str(tmp_path / "x"), "--target-translation", "a,b"]) == 2
+
+
+# ----------------------------------------------------------------------------------------------
+# large articulations
+
+
+def root_frame(pair, joints):
+    """Joints in the character's rest frame: the target pose's root rotation and translation undone."""
+    r0 = quat_to_matrix(pair.info["pose_b"].rotations[0], scalar_first=True)
+    return (joints - pair.target_joints[0]) @ r0 + pair.skeleton.positions[0]
+
+
+def test_more_large_joints():
+    pair = make_pair("humanoid", 3, resolution=30, retriangulate=False, large_joints=3)
+    names = pair.skeleton.names
+    extra = pair.info["extra_large_joints"]
+    assert len(extra) == 2 and len(set(extra + [pair.info["large_joint"]])) == 3
+    assert set(extra) <= {"elbow_l", "elbow_r", "knee_l", "knee_r"}
+    after = bone_angles(pair.target_joints, pair.skeleton.parents)
+    child = {names[pair.skeleton.parents[c]]: c for c in range(1, len(names))}  # each hinge has one child
+    for name, angle in zip(
+        [pair.info["large_joint"]] + extra, [pair.info["large_angle_deg"]] + pair.info["extra_large_angles_deg"]
+    ):
+        assert 60.0 <= angle <= 100.0
+        assert after[child[name]] == pytest.approx(angle, abs=1e-9)  # collinear bones at rest: the angle is the flexion
+    # the same seed without extra joints: the same random pose elsewhere
+    base = make_pair("humanoid", 3, resolution=30, retriangulate=False)
+    assert base.info["large_joint"] == pair.info["large_joint"]
+    changed = [
+        j
+        for j in range(len(names))
+        if not np.array_equal(base.info["pose_b"].rotations[j], pair.info["pose_b"].rotations[j])
+    ]
+    assert sorted(names[j] for j in changed) == sorted(extra)
+    with pytest.raises(InputError, match="large rotations"):
+        make_pair("hand", 0, resolution=30, retriangulate=False, large_joints=5)
+    with pytest.raises(InputError, match="at least 1"):
+        make_pair("hand", 0, resolution=30, retriangulate=False, large_joints=0)
+
+
+def test_hand_curl_and_posed_source():
+    pair = make_pair("hand", 2, resolution=30, retriangulate=False, articulation="curl", source_pose="random")
+    names, parents = pair.skeleton.names, pair.skeleton.parents
+    assert pair.info["articulation"] == "curl" and len(pair.info["articulation_joints"]) == 15
+    after = bone_angles(pair.target_joints, parents)
+    for f in ("index", "middle", "ring", "little"):
+        assert 70.0 - 1e-9 <= after[names.index(f"{f}3")] <= 100.0 + 1e-9  # PIP
+        assert 45.0 - 1e-9 <= after[names.index(f"{f}_tip")] <= 70.0 + 1e-9  # DIP
+        tip, wrist = names.index(f"{f}_tip"), 0
+        flat = np.linalg.norm(pair.skeleton.positions[tip] - pair.skeleton.positions[wrist])
+        assert np.linalg.norm(pair.target_joints[tip] - pair.target_joints[wrist]) < 0.6 * flat
+    assert 30.0 - 1e-9 <= after[names.index("thumb3")] <= 50.0 + 1e-9
+    # the posed source keeps every articulated joint at rest
+    for name in pair.info["articulation_joints"]:
+        np.testing.assert_array_equal(pair.info["pose_a"].rotations[names.index(name)], [1.0, 0.0, 0.0, 0.0])
+    ch = make_character("hand", 2, 30)
+    assert_exact(pair, pose_character(ch, pair.info["pose_b"]).vertices)
+
+
+def test_humanoid_and_quadruped_articulations():
+    cross = make_pair("humanoid", 1, resolution=30, retriangulate=False, articulation="cross")
+    names = cross.skeleton.names
+    j = root_frame(cross, cross.target_joints)
+    rest = cross.skeleton.positions
+    assert rest[names.index("hand_l"), 0] > 0 > rest[names.index("hand_r"), 0]
+    assert j[names.index("hand_l"), 0] < rest[0, 0] < j[names.index("hand_r"), 0]  # each hand across the midline
+    for side in ("l", "r"):  # forearms in front of the chest
+        assert j[names.index(f"wrist_{side}"), 2] > rest[names.index("chest"), 2] + 0.1
+    stride = make_pair("humanoid", 1, resolution=30, retriangulate=False, articulation="stride")
+    j = root_frame(stride, stride.target_joints)
+    thigh = np.linalg.norm(rest[names.index("knee_l")] - rest[names.index("hip_l")])
+    assert abs(j[names.index("ankle_l"), 2] - j[names.index("ankle_r"), 2]) > 0.8 * thigh
+    crouch = make_pair("humanoid", 1, resolution=30, retriangulate=False, articulation="crouch")
+    after = bone_angles(crouch.target_joints, crouch.skeleton.parents)
+    for side in ("l", "r"):
+        assert 85.0 - 1e-9 <= after[names.index(f"ankle_{side}")] <= 110.0 + 1e-9  # knee bend
+    gallop = make_pair("quadruped", 0, resolution=30, retriangulate=False, articulation="gallop")
+    q = gallop.skeleton.names
+    j = root_frame(gallop, gallop.target_joints)
+    for side in ("l", "r"):
+        assert j[q.index(f"fpaw_{side}"), 2] > j[q.index(f"shoulder_{side}"), 2] + 0.1
+        assert j[q.index(f"hpaw_{side}"), 2] < j[q.index(f"hip_{side}"), 2] - 0.1
+    with pytest.raises(InputError, match="no articulation 'curl' for the humanoid"):
+        make_pair("humanoid", 1, resolution=30, retriangulate=False, articulation="curl")
+
+
+# ----------------------------------------------------------------------------------------------
+# MANO fist
+
+
+def palm_centre(model, verts):
+    """Centroid of the vertices skinned mostly to the wrist."""
+    return verts[np.argmax(model.weights, axis=1) == 0].mean(axis=0)
+
+
+def test_mano_fist_on_the_fake_model(mano_npz):
+    model = load_mano(mano_npz)
+    axes = mano_flexion_axes(model)
+    # fake fingers point along +z, palm normal -y (index MCP - wrist) x (little MCP - wrist): axis = z x (-y) = +x
+    np.testing.assert_allclose(axes[:12], np.tile([1.0, 0.0, 0.0], (12, 1)), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(axes, axis=1), 1.0, atol=1e-12)
+    fist = mano_finger_pose(model, "fist")
+    deg = np.r_[np.tile([80.0, 90.0, 70.0], 4), [45.0, 45.0, 65.0]]
+    np.testing.assert_allclose(fist.reshape(15, 3), axes * np.radians(deg)[:, None], atol=1e-15)
+    np.testing.assert_array_equal(mano_finger_pose(model, "flat"), np.zeros(45))
+    pair = mano_pair(model, "flat", "fist", tip_vertices=TIPS)
+    assert pair.name == "mano_flat_fist" and pair.info["pose_b"] == "fist"
+    np.testing.assert_allclose(pair.source.vertices, model.v_template, atol=1e-15)
+    # the index finger curls in its own (y, z) plane: 80°, 170°, 240° accumulated
+    j = model.v_template[:16]
+
+    def seg(length, a):
+        return length * np.array([0.0, -math.sin(math.radians(a)), math.cos(math.radians(a))])
+
+    tip = j[1] + seg(0.03, 80) + seg(0.03, 170) + seg(0.02, 240)
+    np.testing.assert_allclose(pair.target.vertices[16], tip, atol=1e-12)
+    flat, closed = pair.source.vertices, pair.target.vertices
+    d0 = np.linalg.norm(flat[list(TIPS)] - palm_centre(model, flat), axis=1)
+    d1 = np.linalg.norm(closed[list(TIPS)] - palm_centre(model, closed), axis=1)
+    assert np.all(d1 < 0.6 * d0)
+    assert_exact(pair, closed)
+    with pytest.raises(InputError, match="pose name"):
+        mano_finger_pose(model, "open")
+
+
+def test_cli_mano_flat_fist(tmp_path):
+    model = write_padded_fake_mano(tmp_path)
+    out = tmp_path / "fist"
+    assert main(["make-pairs", str(out), "--mano", str(model), "--poses", "flat,fist", "--seed", "3"]) == 0
+    (row,) = read_rows(out / "pairs.csv")
+    assert row["name"] == "mano_flat_fist"
+    tgt = load_mesh(out / row["target"])
+    ref = mano_pair(model, "flat", "fist")
+    np.testing.assert_array_equal(tgt.vertices, ref.target.vertices)
+
+
+MANO_RIGHT = Path(__file__).resolve().parents[2] / "shared" / "data" / "mano" / "mano_right.npz"
+
+
+@pytest.mark.skipif(not MANO_RIGHT.is_file(), reason="needs the shared MANO model")
+def test_mano_fist_closes_the_real_hand():
+    model = load_mano(MANO_RIGHT)
+    axes = mano_flexion_axes(model)
+    # the axes close the hand the way the captured mean pose does
+    assert np.sum(axes[:12] * model.hands_mean.reshape(15, 3)[:12]) > 0
+    pair = mano_pair(model, "flat", "fist", retriangulate=True, target_rotation=90.0, target_translation=0.5)
+    flat, _ = mano_forward(model, np.zeros(45))
+    closed, _ = mano_forward(model, mano_finger_pose(model, "fist"))
+    np.testing.assert_allclose(pair.source.vertices, flat, atol=1e-15)
+    tips = list(MANO_TIP_VERTICES)
+    d0 = np.linalg.norm(flat[tips] - palm_centre(model, flat), axis=1)
+    d1 = np.linalg.norm(closed[tips] - palm_centre(model, closed), axis=1)
+    assert np.all(d1 < 0.6 * d0), d1 / d0
+    m = pair.info["target_motion"]
+    assert_exact(pair, closed @ m["rotation"].T + m["translation"])

@@ -7,8 +7,10 @@ import pytest
 
 from ncflow.cli import main
 from ncflow.errors import InputError
-from ncflow.shapes import sphere, tube
-from ncflow.skeleton.skeleton import Skeleton, check_inside, load_skeleton, save_skeleton
+from ncflow.geometry.skeleton import Skeleton
+from ncflow.io.skeletons import load_skeleton, save_skeleton
+from ncflow.skeleton.checks import check_inside
+from ncflow.synthetic.shapes import sphere, tube
 
 # a small hand-like tree: root 0, chain 0-1-2, branch 1-3-4, branch 0-5
 POS = np.array([[0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 2.0, 0.5], [0.7, 1.5, 0.0], [1.2, 2.0, 0.1], [-0.6, -0.4, 0.2]])
@@ -231,7 +233,7 @@ def test_cli_info(tmp_path, capsys):
 
 
 def test_cli_info_with_mesh_warns(tmp_path, capsys):
-    from ncflow.mesh import save_mesh
+    from ncflow.io.meshes import save_mesh
 
     v, f = sphere(2, radius=1.0)
     mesh = tmp_path / "ball.ply"

@@ -130,7 +130,7 @@ def test_configuration_of_the_skinned_field():
 def test_div_free_switch_turns_the_skinned_field_off():
     import argparse
 
-    from ncflow.cli.match import add_config_arguments, config_from_args
+    from ncflow.cli.options import add_config_arguments, config_from_args
 
     p = argparse.ArgumentParser()
     add_config_arguments(p)

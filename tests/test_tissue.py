@@ -11,8 +11,9 @@ import pytest
 
 from ncflow import tissue
 from ncflow.errors import InputError
-from ncflow.mesh import close_boundary, enclosed_volume, mesh_topology
-from ncflow.shapes import sphere, tube
+from ncflow.geometry.mesh import enclosed_volume
+from ncflow.geometry.topology import close_boundary, mesh_topology
+from ncflow.synthetic.shapes import sphere, tube
 from ncflow.tissue import (
     sample_tissue,
     soft_tissue,
@@ -196,7 +197,7 @@ def test_bad_surfaces_raise_input_errors():
 
 def test_thin_slab_that_fills_nothing_raises(monkeypatch, tmp_path):
     monkeypatch.chdir(tmp_path)
-    from ncflow.shapes import rounded_box
+    from ncflow.synthetic.shapes import rounded_box
 
     v, f = rounded_box(2.0, 0.0, 2)
     v = v * np.array([1.0, 1.0, 1e-4])  # far thinner than the envelope: fTetWild keeps no tet

@@ -6,9 +6,14 @@ A small public surface; everything else lives in the submodules (``ncflow.measur
 
 __version__ = "0.1.0"
 
+from ncflow import match
 from ncflow.config import Config, load_config, preset
 from ncflow.errors import InputError, NcflowError
-from ncflow.matcher import Matcher, MatchResult, TrainingError, match
+from ncflow.geometry.mesh import Mesh
+from ncflow.geometry.normalize import fit_normalization
+from ncflow.geometry.topology import mesh_topology
+from ncflow.io.meshes import load_mesh, save_mesh
+from ncflow.match import Matcher, MatchResult, TrainingError
 from ncflow.measures import (
     compress_normal_cycle,
     compress_varifold,
@@ -17,7 +22,6 @@ from ncflow.measures import (
     varifold,
     varifold_distance,
 )
-from ncflow.mesh import Mesh, fit_normalization, load_mesh, mesh_topology, save_mesh
 from ncflow.skeleton import Skeleton, load_skeleton, save_skeleton
 
 __all__ = [

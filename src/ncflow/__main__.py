@@ -1,3 +1,5 @@
+"""``python -m ncflow``: the ``ncflow`` command."""
+
 import sys
 
 from ncflow.cli import main

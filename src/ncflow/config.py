@@ -35,22 +35,6 @@ from dataclasses import dataclass, field
 
 from ncflow.errors import InputError
 
-__all__ = [
-    "Config",
-    "FlowConfig",
-    "SamplingConfig",
-    "PhaseConfig",
-    "ConstraintConfig",
-    "WeightsConfig",
-    "TissueConfig",
-    "PRESETS",
-    "preset",
-    "load_config",
-    "apply_overrides",
-    "config_to_dict",
-    "METRICS",
-]
-
 METRICS = ("varifold", "normal-cycles")
 
 
@@ -119,8 +103,9 @@ class ConstraintConfig:
     the volume of the unit ball) between a bone's flowed samples and their rigid reference.
     ``mode`` "mdmm": Lagrangian w·mean_k(λ_k Γ_k + (δ/2)Γ_k²), Γ_k = max(g_k − ε, 0), with
     multipliers λ ≥ 0 updated every step by λ ← max(0, λ ± η_t) (up while violated, down once
-    satisfied; η_t ramps from 0 to 2·``multiplier_lr`` over the run) and damping δ = ``damping``; "soft": a fixed penalty ``soft_weight`` · mean_k g_k/ε
-    (the ARC-Flow baseline). ``trajectory_weight`` scales the interior-time constraints.
+    satisfied; η_t ramps from 0 to 2·``multiplier_lr`` over the run) and damping δ = ``damping``;
+    "soft": a fixed penalty ``soft_weight`` · mean_k g_k/ε (the ARC-Flow baseline).
+    ``trajectory_weight`` scales the interior-time constraints.
     ``margin`` (0 < margin ≤ 1): the MDMM terms aim at g_k ≤ margin·ε. MDMM settles each active
     constraint *at* its target, fluctuating around it with the per-step sampling; aiming a
     margin below ε keeps the final values (estimated on fresh samples) under ε. The ``paper``
@@ -164,6 +149,10 @@ class Config:
     largest bone violation above 5× this multiple of its best and above 20 ε), the run is rolled
     back to its last healthy snapshot and continues with half the learning rate
     (``matcher.DivergenceGuard``).
+    ``placement`` (``auto`` | ``none``): move the target rigidly onto the source before matching
+    (any rotation; :mod:`ncflow.match.placement`), outputs moved back; ``none`` trusts the input
+    placement. ``pose_search``: search the skeleton pose that best explains the target before the
+    flow trains (:mod:`ncflow.match.pose_search`; with ``flow.skinning`` only).
     """
 
     preset: str = "fast"
@@ -181,6 +170,8 @@ class Config:
     compress: int | None = 3000
     frames: int = 20
     divergence_guard: float = 2.0
+    placement: str = "auto"
+    pose_search: bool = True
 
     @property
     def total_steps(self) -> int:
@@ -312,7 +303,7 @@ def _build(cls, data: dict, where: str):
     return dataclasses.replace(base, **kwargs)
 
 
-def _merge(config: Config, data: dict, where: str) -> Config:
+def _merge(config: Config, data: dict, where: str | None) -> Config:
     """Replace the fields given in ``data`` (nested tables merge into the current sub-config)."""
     hints = typing.get_type_hints(Config)
     names = {f.name for f in dataclasses.fields(Config)}
@@ -415,6 +406,7 @@ def validate_config(config: Config) -> Config:
         (config.frames >= 2, "frames must be at least 2"),
         (config.divergence_guard == 0 or config.divergence_guard > 1, "divergence_guard must be 0 (off) or above 1"),
         (len(config.phases) >= 1, "at least one phase is needed"),
+        (config.placement in ("auto", "none"), "placement must be 'auto' or 'none'"),
     ]
     for ok, message in checks:
         if not ok:
@@ -441,3 +433,14 @@ def with_metric(config: Config, metric: str) -> Config:
         raise InputError(f"--metric must be varifold, normal-cycles or varifold+normal-cycles (got {metric!r})")
     phases = tuple(dataclasses.replace(p, metric=metric) for p in config.phases)
     return dataclasses.replace(config, phases=phases)
+
+
+def scale_steps(cfg: Config, total: int) -> Config:
+    """Rescale the phases' step counts (and warm-ups) to ``total`` steps, keeping proportions."""
+    old = cfg.total_steps
+    steps = [max(1, round(p.steps * total / old)) if p.steps else 0 for p in cfg.phases]
+    steps[-1] = max(1, total - sum(steps[:-1])) if total > sum(steps[:-1]) else steps[-1]
+    phases = tuple(
+        dataclasses.replace(p, steps=n, warmup=min(p.warmup, max(0, n // 5))) for p, n in zip(cfg.phases, steps)
+    )
+    return dataclasses.replace(cfg, phases=phases)

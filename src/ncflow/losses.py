@@ -1,5 +1,7 @@
-"""Distortion terms and bone-constraint values of the matching objective (paper §4.3–4.5,
-Eqs. 21–22; DESIGN.md "Soft tissue", "Constraints (MDMM)"; reference-notes §7.3, §7.4, §9).
+"""Distortion terms and bone-constraint values of the matching objective: the only place they are written.
+
+Paper §4.3–4.5, Eqs. 21–22; DESIGN.md "Soft tissue", "Constraints (MDMM)"; reference-notes §7.3,
+§7.4, §9.
 
 All terms take *flowed grid states* as produced by :func:`ncflow.flow.integrate` — arrays
 (T, N, 3) with states[k] the points at t_k = k/(T−1), states[0] the start — and return scalars
@@ -38,25 +40,10 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, Int, PRNGKeyArray
+from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
 
 from ncflow.flow.integrate import time_grid
 from ncflow.measures.normal_cycles import safe_normalize
-
-__all__ = [
-    "DEFAULT_TISSUE_DELTA",
-    "arap_energy",
-    "bone_constraints",
-    "bone_endpoint_constraint",
-    "bone_trajectory_constraint",
-    "edge_points",
-    "sample_edges",
-    "split_stencil",
-    "surface_distortion",
-    "tissue_distortion",
-    "tissue_frame_energy",
-    "tissue_stencil",
-]
 
 DEFAULT_TISSUE_DELTA = 0.01
 """Finite-difference step δ of the tissue stencil, in normalised units (the release's value)."""
@@ -66,7 +53,7 @@ DEFAULT_TISSUE_DELTA = 0.01
 # soft tissue
 
 
-def tissue_stencil(samples: Float[Array, "n 3"], delta: float = DEFAULT_TISSUE_DELTA) -> Float[Array, "4n 3"]:
+def tissue_stencil(samples: Float[ArrayLike, "n 3"], delta: float = DEFAULT_TISSUE_DELTA) -> Float[Array, "4*n 3"]:
     """The 4n points to flow for n tissue samples: rows [p; p + δe_x; p + δe_y; p + δe_z].
 
     Block layout: rows 0..n−1 are the samples, rows (m+1)n..(m+2)n−1 the samples shifted along
@@ -78,8 +65,8 @@ def tissue_stencil(samples: Float[Array, "n 3"], delta: float = DEFAULT_TISSUE_D
 
 
 def split_stencil(
-    states: Float[Array, "T 4n 3"],
-) -> tuple[Float[Array, "T n 3"], Float[Array, "T n 3 3"]]:
+    states: Float[ArrayLike, "T four_n 3"],
+) -> tuple[Float[Array, "T four_n//4 3"], Float[Array, "T four_n//4 3 3"]]:
     """Flowed stencil states → (centres x(p, t) (T, n, 3), frames D (T, n, 3, 3)).
 
     frames[k, i, m] = x(p_i + δe_m, t_k) − x(p_i, t_k) (row m is D_m).
@@ -93,7 +80,7 @@ def split_stencil(
 
 
 def tissue_frame_energy(
-    frames: Float[Array, "*batch 3 3"], delta: float = DEFAULT_TISSUE_DELTA
+    frames: Float[ArrayLike, "*batch 3 3"], delta: float = DEFAULT_TISSUE_DELTA
 ) -> Float[Array, "*batch"]:
     """ℓ = Σ_{m,m'} (D̂_m·D̂_m' − [m = m'])² + Σ_m (δ − ‖D_m‖)²/δ² per frame (rows D_m)."""
     unit, norm = safe_normalize(frames)
@@ -103,7 +90,7 @@ def tissue_frame_energy(
     return ortho + stretch
 
 
-def tissue_distortion(states: Float[Array, "T 4n 3"], delta: float = DEFAULT_TISSUE_DELTA) -> Float[Array, ""]:
+def tissue_distortion(states: Float[ArrayLike, "T four_n 3"], delta: float = DEFAULT_TISSUE_DELTA) -> Float[Array, ""]:
     """L_soft: mean of :func:`tissue_frame_energy` over grid times t_1..t_{T−1} and samples.
 
     Args:
@@ -120,11 +107,11 @@ def tissue_distortion(states: Float[Array, "T 4n 3"], delta: float = DEFAULT_TIS
 
 def arap_energy(
     rest: Float[Array, "V 3"],
-    edges: Int[Array, "E 2"],
+    edges: Int[ArrayLike, "E 2"],
     states: Float[Array, "K V 3"],
     rotations: Float[Array, "K V 3 3"],
 ) -> Float[Array, ""]:
-    """mean over K times and E edges of ½(e_ij + e_ji), e_ij = ‖(x_i − x_j)(t) − R_i(t)(x_i − x_j)‖².
+    """Mean over K times and E edges of ½(e_ij + e_ji), e_ij = ‖(x_i − x_j)(t) − R_i(t)(x_i − x_j)‖².
 
     Args:
         rest: rest positions x (V, 3) (the source vertices, or the points of :func:`edge_points`).
@@ -145,15 +132,17 @@ def arap_energy(
 
 def surface_distortion(
     gso,
-    rest: Float[Array, "V 3"],
-    edges: Int[Array, "E 2"],
-    states: Float[Array, "T V 3"],
+    rest: Float[ArrayLike, "V 3"],
+    edges: Int[ArrayLike, "E 2"],
+    states: Float[ArrayLike, "T V 3"],
 ) -> Float[Array, ""]:
     """L_surf: :func:`arap_energy` on grid times t_1..t_{T−1} with R_i(t_k) = gso(x_i(t_k), t_k).
 
     Args:
         gso: a rotation predictor ``gso(x (N, 3), t) -> (N, 3, 3)`` (:class:`ncflow.flow.GSONet`).
-        rest: rest positions (V, 3); edges: (E, 2); states: flowed grid states (T, V, 3), T ≥ 2.
+        rest: (V, 3) rest positions of the points.
+        edges: (E, 2) index pairs (i, j) into the V points, the edges whose distortion is measured.
+        states: (T, V, 3) flowed states of the points on the time grid t_0..t_{T−1}, T ≥ 2.
     """
     states = jnp.asarray(states)
     ts = time_grid(states.shape[0], states.dtype)
@@ -162,16 +151,16 @@ def surface_distortion(
     return arap_energy(jnp.asarray(rest, states.dtype), edges, later, rotations.astype(states.dtype))
 
 
-def sample_edges(key: PRNGKeyArray, edges: Int[Array, "E 2"], n: int) -> Int[Array, "n 2"]:
-    """n of the E edges drawn uniformly without replacement (all E in random order if n ≥ E)."""
+def sample_edges(key: PRNGKeyArray, edges: Int[ArrayLike, "E 2"], n: int) -> Int[Array, "n 2"]:
+    """N of the E edges drawn uniformly without replacement (all E in random order if n ≥ E)."""
     edges = jnp.asarray(edges)
     idx = jax.random.permutation(key, edges.shape[0])[: min(int(n), edges.shape[0])]
     return edges[idx]
 
 
 def edge_points(
-    vertices: Float[Array, "V 3"], edges: Int[Array, "n 2"]
-) -> tuple[Float[Array, "2n 3"], Int[np.ndarray, "n 2"]]:
+    vertices: Float[ArrayLike, "V 3"], edges: Int[ArrayLike, "n 2"]
+) -> tuple[Float[Array, "2*n 3"], Int[np.ndarray, "n 2"]]:
     """Points to flow for an edge subset: (rows [x_i of every edge; x_j of every edge] (2n, 3),
     local edges [[k, n + k]] (n, 2)). Pass both to :func:`surface_distortion` with the flowed
     points' states; a vertex shared by several edges is flowed once per edge end (trajectories are
@@ -197,7 +186,9 @@ def _check_bone_shapes(flowed, reference) -> None:
         )
 
 
-def bone_endpoint_constraint(flowed: Float[Array, "T B n 3"], reference: Float[Array, "T B n 3"]) -> Float[Array, " B"]:
+def bone_endpoint_constraint(
+    flowed: Float[ArrayLike, " ..."], reference: Float[ArrayLike, " ..."]
+) -> Float[Array, " B"]:
     """g_k^EP = mean over bone k's samples of ‖s(1) − s̄(1)‖² (full squared 3-D distance), (B,)."""
     flowed, reference = jnp.asarray(flowed), jnp.asarray(reference)
     _check_bone_shapes(flowed, reference)
@@ -205,7 +196,7 @@ def bone_endpoint_constraint(flowed: Float[Array, "T B n 3"], reference: Float[A
 
 
 def bone_trajectory_constraint(
-    flowed: Float[Array, "T B n 3"], reference: Float[Array, "T B n 3"]
+    flowed: Float[ArrayLike, " ..."], reference: Float[ArrayLike, " ..."]
 ) -> Float[Array, " B"]:
     """g_k^TR = mean over interior grid times t_1..t_{T−2} and bone k's samples of ‖s(t) − s̄(t)‖², (B,).
 
@@ -220,7 +211,7 @@ def bone_trajectory_constraint(
 
 
 def bone_constraints(
-    flowed: Float[Array, "T B n 3"], reference: Float[Array, "T B n 3"]
+    flowed: Float[ArrayLike, " ..."], reference: Float[ArrayLike, " ..."]
 ) -> tuple[Float[Array, " B"], Float[Array, " B"]]:
     """(g^EP, g^TR) per bone — see :func:`bone_endpoint_constraint`, :func:`bone_trajectory_constraint`.
 

@@ -1,13 +1,15 @@
-"""Soft-tissue samples: tetrahedralise the source once, split large tetrahedra, sample centroids
-(paper §4.4 "Uniform Volumetric Sampling", Fig. 5; DESIGN.md "Soft tissue"; reference-notes §7.1).
+"""Soft-tissue samples: tetrahedralise the source once, split large tetrahedra, sample centroids.
+
+Paper §4.4 "Uniform Volumetric Sampling", Fig. 5; DESIGN.md "Soft tissue"; reference-notes §7.1.
 
 Pipeline, run once on the (normalised) source surface:
 
 1. :func:`tetrahedralize_surface` — fTetWild through the compiled extension of ``pytetwild``.
-   Open surfaces are first closed with :func:`ncflow.mesh.close_boundary` (a fan of triangles to
-   each boundary loop's centroid, the same closing used for the enclosed volume), so the tets
-   fill the volume that :func:`ncflow.mesh.enclosed_volume` measures. Tets are re-oriented to
-   positive volume (fTetWild returns them negatively oriented) and zero-volume tets are dropped.
+   Open surfaces are first closed with :func:`ncflow.geometry.topology.close_boundary` (a fan of
+   triangles to each boundary loop's centroid, the same closing used for the enclosed volume), so
+   the tets fill the volume that :func:`ncflow.geometry.mesh.enclosed_volume` measures. Tets are
+   re-oriented to positive volume (fTetWild returns them negatively oriented) and zero-volume tets
+   are dropped.
 2. :func:`split_tets` — a few passes of longest-edge bisection of every tet whose volume exceeds
    ``volume_factor`` × the current mean volume (optionally also of tets whose longest/shortest
    edge ratio exceeds ``edge_ratio``, the release's second criterion). Bisection at the midpoint
@@ -17,30 +19,33 @@ Pipeline, run once on the (normalised) source surface:
 3. :func:`tet_centroids` — the sample locations; :func:`sample_tissue` draws n of them without
    replacement from a JAX key at every training step.
 
-:func:`soft_tissue` runs 1–3 and returns a :class:`Tissue`.
+:func:`soft_tissue` runs 1–3 and returns a :class:`Tissue`; :func:`tissue_centroids` is what the
+matcher calls: 1–3 with the configured settings, cached per surface (below).
 
 pytetwild quirks handled here (DESIGN.md "Machine facts"): pytetwild 0.4.2 imports pyvista at
 package import although the numpy path does not need it, so the compiled ``PyfTetWildWrapper``
 extension is loaded directly without executing ``pytetwild/__init__.py``; fTetWild writes
 ``__tracked_surface.stl`` into the current directory, so it runs inside a temporary directory.
 
-Reproducibility: fTetWild is **not deterministic** — repeated calls on the same surface, in the
-same or in fresh processes, with one thread or several, return different meshes (measured with
-pytetwild 0.4.2: e.g. 2354 / 2401 / 2372 tets on ``sphere(3)``; it has no seed argument and the
-variation persists with simplification and optimisation switched off). Everything after it
-(splitting, keyed sampling) is deterministic. To reproduce a run exactly, keep the
-:class:`Tissue` arrays (e.g. ``np.savez``) and reuse them.
+Reproducibility: fTetWild is **not deterministic** (repeated calls on the same surface return
+different meshes, and it has no seed; measurements in docs/tuning.md), while everything after it
+(splitting, keyed sampling) is. So :func:`tissue_centroids` caches the first tetrahedralisation of
+each surface and settings (``$NCFLOW_CACHE_DIR``, default ``~/.cache/ncflow``) and reuses it;
+outside the matcher, keep the :class:`Tissue` arrays (e.g. ``np.savez``) to reproduce a run.
 """
 
 from __future__ import annotations
 
 import functools
 import glob
+import hashlib
 import importlib.machinery
 import importlib.util
 import os
 import sys
 import tempfile
+import time
+from pathlib import Path
 from typing import NamedTuple
 
 import jax
@@ -49,21 +54,8 @@ import numpy as np
 from jaxtyping import Array, Float, Int, PRNGKeyArray
 
 from ncflow.errors import InputError
-from ncflow.mesh import close_boundary
-
-__all__ = [
-    "DEFAULT_EDGE_LENGTH_FAC",
-    "DEFAULT_EPSILON",
-    "DEFAULT_SPLIT_PASSES",
-    "DEFAULT_VOLUME_FACTOR",
-    "Tissue",
-    "sample_tissue",
-    "soft_tissue",
-    "split_tets",
-    "tet_centroids",
-    "tet_volumes",
-    "tetrahedralize_surface",
-]
+from ncflow.geometry.topology import close_boundary
+from ncflow.io.atomic import atomic_path
 
 DEFAULT_EDGE_LENGTH_FAC = 0.1
 """Ideal tet edge length relative to the bounding-box diagonal (the release uses 0.05; coarser here)."""
@@ -168,7 +160,9 @@ def tetrahedralize_surface(
         optimize: run fTetWild's quality optimisation (default True; without it tets are far
             from uniform).
         num_threads: fTetWild threads (0: all cores).
-        num_opt_iter, stop_energy: fTetWild optimisation limits (its defaults).
+        num_opt_iter: maximal number of fTetWild optimisation passes (its default, 80).
+        stop_energy: fTetWild stops optimising once the worst tet's AMIPS energy is below this
+            (its default, 10).
 
     Returns:
         (vertices (P, 3) float64, tets (K, 4) int64), every tet positively oriented
@@ -358,3 +352,55 @@ def sample_tissue(key: PRNGKeyArray, centroids: Float[Array, "K 3"], n: int) -> 
     n = min(int(n), k)
     idx = jax.random.permutation(key, k)[:n]
     return centroids[idx]
+
+
+def _cache_dir() -> Path:
+    base = os.environ.get("NCFLOW_CACHE_DIR") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "ncflow"
+    )
+    return Path(base)
+
+
+def tissue_centroids(
+    vertices: Float[np.ndarray, "V 3"], faces: Int[np.ndarray, "F 3"], settings
+) -> tuple[np.ndarray, dict]:
+    """Tet centroids of the (normalised) source; cached per surface and settings.
+
+    ``settings`` is a :class:`ncflow.config.TissueConfig` (``edge_length_fac``, ``epsilon``,
+    ``split_passes``, ``cache``).
+
+    fTetWild is not deterministic (the same surface gives slightly different tets from run to run),
+    so the first tetrahedralisation of a surface is cached (``$NCFLOW_CACHE_DIR``, default
+    ``~/.cache/ncflow``) and reused: repeated runs on one machine are then reproducible.
+    """
+    tc = settings
+    h = hashlib.sha256()
+    h.update(np.ascontiguousarray(vertices, np.float64).tobytes())
+    h.update(np.ascontiguousarray(faces, np.int64).tobytes())
+    h.update(repr((tc.edge_length_fac, tc.epsilon, tc.split_passes)).encode())
+    path = _cache_dir() / "tissue" / f"{h.hexdigest()[:32]}.npz"
+    info = {"cached": False}
+    if tc.cache and path.exists():
+        try:
+            data = np.load(path)
+            info.update(cached=True, n_centroids=int(data["centroids"].shape[0]), seconds=0.0)
+            return np.asarray(data["centroids"]), info
+        except Exception:  # a broken cache entry is recomputed
+            pass
+    t0 = time.perf_counter()
+    tissue = soft_tissue(
+        vertices, faces, edge_length_fac=tc.edge_length_fac, epsilon=tc.epsilon, passes=tc.split_passes
+    )
+    info.update(
+        n_tets_initial=int(tissue.n_tets_initial),
+        n_centroids=int(tissue.centroids.shape[0]),
+        seconds=time.perf_counter() - t0,
+    )
+    if tc.cache:
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            with atomic_path(path) as tmp:  # concurrent runs never read a half-written entry
+                np.savez(tmp, centroids=tissue.centroids)
+        except OSError:
+            pass
+    return np.asarray(tissue.centroids), info

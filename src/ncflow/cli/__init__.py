@@ -1,21 +1,25 @@
 """The ``ncflow`` command.
 
-Subcommands live in the modules of this package; each defines ``register(subparsers)`` which adds
-its parser and sets ``func`` (called with the parsed arguments, returning an exit code). Modules
-are discovered automatically, so adding a command is adding a module.
+One module per command, listed in :data:`COMMANDS`; each defines ``register(subparsers)``, which
+adds its parser and sets ``func`` (called with the parsed arguments, returning an exit code; the
+work itself is one library call). :mod:`ncflow.cli.options` holds the options the matching
+commands share. Heavy dependencies are imported inside ``run`` functions, so ``ncflow --help``
+stays fast.
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
-import pkgutil
 import sys
 
 from ncflow import __version__
+from ncflow.cli import benchmark, demo, distance, evaluate, make_pairs, make_shape, match, pose, skeleton
 from ncflow.errors import NcflowError
 
-__all__ = ["main", "build_parser"]
+__all__ = ["COMMANDS", "build_parser", "main"]
+
+# the command table, in the order ``ncflow --help`` lists them
+COMMANDS = (benchmark, demo, distance, evaluate, make_pairs, make_shape, match, pose, skeleton)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -25,12 +29,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"ncflow {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for info in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
-        if info.name.startswith("_"):
-            continue
-        module = importlib.import_module(f"{__name__}.{info.name}")
-        if hasattr(module, "register"):
-            module.register(sub)
+    for module in COMMANDS:
+        module.register(sub)
     return parser
 
 

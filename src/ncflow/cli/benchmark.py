@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ncflow.cli.match import add_config_arguments, config_from_args
+from ncflow.cli.options import add_config_arguments, config_from_args
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -66,7 +66,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {args.out}/report.md and report.json")
     if res.n_failed:
         print(
-            f"ncflow benchmark: {res.n_failed} run(s) failed (listed in report.md); run the same command again to retry them",
+            f"ncflow benchmark: {res.n_failed} run(s) failed (listed in report.md); "
+            "run the same command again to retry them",
             file=sys.stderr,
         )
         return 1

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ncflow.cli.match import add_config_arguments, config_from_args
+from ncflow.cli.options import add_config_arguments, config_from_args
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -37,8 +37,8 @@ def run(args: argparse.Namespace) -> int:
 
     from ncflow.errors import InputError
     from ncflow.evaluate import auc, geodesic_errors
-    from ncflow.matcher import Matcher
-    from ncflow.pairs import make_pair, write_pair
+    from ncflow.match.matcher import Matcher
+    from ncflow.synthetic.pairs import make_pair, write_pair
 
     out = Path(args.out)
     if out.is_dir() and any(out.iterdir()) and not args.overwrite:

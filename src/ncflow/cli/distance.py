@@ -52,15 +52,10 @@ def run(args: argparse.Namespace) -> int:
         jax.config.update("jax_enable_x64", True)
     import jax.numpy as jnp
 
-    from ncflow.measures import (
-        compress_normal_cycle,
-        compress_varifold,
-        normal_cycle,
-        normal_cycle_distance,
-        varifold,
-        varifold_distance,
-    )
-    from ncflow.mesh import fit_normalization, load_mesh, mesh_topology
+    from ncflow.geometry.normalize import fit_normalization
+    from ncflow.geometry.topology import mesh_topology
+    from ncflow.io.meshes import load_mesh
+    from ncflow.measures.registry import get_metric
 
     t0 = time.perf_counter()
     a, b = load_mesh(args.a), load_mesh(args.b)
@@ -71,17 +66,12 @@ def run(args: argparse.Namespace) -> int:
     dtype = jnp.float32 if args.float32 else jnp.float64
     va, vb = jnp.asarray(va, dtype), jnp.asarray(vb, dtype)
     report = None
-    if args.metric == "varifold":
-        x, y = varifold(va, a.faces), varifold(vb, b.faces)
-        if args.compress:
-            y, report = compress_varifold(y, args.compress, args.sigma, args.sigma_normal, seed=args.seed)
-        d = varifold_distance(x, y, args.sigma, args.sigma_normal)
-    else:
-        x = normal_cycle(va, mesh_topology(a.faces, a.n_vertices, name=a.name))
-        y = normal_cycle(vb, mesh_topology(b.faces, b.n_vertices, name=b.name))
-        if args.compress:
-            y, report = compress_normal_cycle(y, args.compress, args.sigma, seed=args.seed)
-        d = normal_cycle_distance(x, y, args.sigma)
+    metric = get_metric(args.metric)
+    x = metric.represent(va, mesh_topology(a.faces, a.n_vertices, name=a.name))
+    y = metric.represent(vb, mesh_topology(b.faces, b.n_vertices, name=b.name))
+    if args.compress:
+        y, report = metric.compress(y, args.compress, args.sigma, args.sigma_normal, args.seed)
+    d = metric.distance(x, y, args.sigma, args.sigma_normal)
     d = float(d)
     seconds = time.perf_counter() - t0
     if args.json:

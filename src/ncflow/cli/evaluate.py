@@ -8,7 +8,8 @@ import argparse
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "evaluate",
-        help="score a match result against ground truth (geodesic, Chamfer, conformal, bones); writes evaluation.json and plots",
+        help="score a match result against ground truth (geodesic, Chamfer, conformal, bones); "
+        "writes evaluation.json and plots",
         description=(
             "Read the output contract in RESULT_DIR, the source and target meshes and the ground truth, compute "
             "the metrics of docs/evaluation.md (geodesic error of map_tgt_to_src, Chamfer distance of "
@@ -58,7 +59,7 @@ def _gt_spec(values: list[str], fmt: str | None):
 def run(args: argparse.Namespace) -> int:
     import json
 
-    from ncflow.evaluate.report import EVALUATION_FILE, evaluate_result, evaluation_text, write_evaluation
+    from ncflow.evaluate.score import EVALUATION_FILE, evaluate_result, evaluation_text, write_evaluation
 
     ev = evaluate_result(
         args.result_dir,

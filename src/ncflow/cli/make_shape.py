@@ -6,7 +6,7 @@ import argparse
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from ncflow.shapes import SHAPES
+    from ncflow.synthetic.shapes import SHAPES
 
     p = sub.add_parser(
         "make-shape",
@@ -22,8 +22,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ncflow.errors import InputError
-    from ncflow.mesh import MESH_SUFFIXES, save_mesh
-    from ncflow.shapes import make_shape
+    from ncflow.io.meshes import MESH_SUFFIXES, save_mesh
+    from ncflow.synthetic.shapes import make_shape
 
     if not args.out.lower().endswith(MESH_SUFFIXES):
         raise InputError(f"output must end with one of {', '.join(MESH_SUFFIXES)}", args.out)

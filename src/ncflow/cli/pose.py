@@ -67,13 +67,14 @@ def _write_all(writers: list[tuple]) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ncflow.errors import InputError
-    from ncflow.gltf import GLTF_SUFFIXES, load_gltf_skin
-    from ncflow.mesh import MESH_SUFFIXES, save_mesh
+    from ncflow.io.gltf.document import GLTF_SUFFIXES
+    from ncflow.io.gltf.skins import gltf_skeleton, load_gltf_skin
+    from ncflow.io.meshes import MESH_SUFFIXES, save_mesh
 
     if not args.file.lower().endswith(GLTF_SUFFIXES):
         raise InputError("expected a .glb or .gltf file", args.file)
     if args.list:
-        from ncflow.gltf import gltf_animations
+        from ncflow.io.gltf.animation import gltf_animations
 
         clips = gltf_animations(args.file)
         if not clips:
@@ -98,16 +99,12 @@ def run(args: argparse.Namespace) -> int:
     writers = [(args.out, lambda p: save_mesh(p, posed.vertices, posed.faces))]
     dropped: list[str] = []
     if args.skeleton_out:
-        from ncflow.gltf import merge_zero_length_bones
-        from ncflow.skeleton import Skeleton, save_skeleton
+        from ncflow.skeleton import save_skeleton
 
         # joints stacked on their parent (zero-length bones) are merged, chosen in the bind pose
         # so that every pose of the file gives the same joints
-        keep, parents = merge_zero_length_bones(rig.joint_world()[:, :3, 3], posed.parents)
+        skeleton, keep = gltf_skeleton(rig, time, args.animation, name=args.file)
         dropped = [n for j, n in enumerate(posed.names) if j not in set(keep.tolist())]
-        skeleton = Skeleton.from_arrays(
-            posed.joint_positions[keep], parents, [posed.names[j] for j in keep], name=args.file
-        )
         writers.append((args.skeleton_out, lambda p: save_skeleton(p, skeleton)))
     _write_all(writers)
 

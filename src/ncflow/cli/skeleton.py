@@ -49,7 +49,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _load(args: argparse.Namespace, path: str):
-    from ncflow.skeleton.skeleton import load_skeleton
+    from ncflow.io.skeletons import load_skeleton
 
     return load_skeleton(path, time=args.time, animation=args.animation)
 
@@ -62,8 +62,8 @@ def run_info(args: argparse.Namespace) -> int:
     skel = _load(args, args.skeleton)
     warnings: list[str] = []
     if args.mesh:
-        from ncflow.mesh import load_mesh
-        from ncflow.skeleton.skeleton import check_inside
+        from ncflow.io.meshes import load_mesh
+        from ncflow.skeleton.checks import check_inside
 
         mesh = load_mesh(args.mesh)
         warnings = check_inside(skel, mesh.vertices, mesh.faces)
@@ -112,7 +112,7 @@ def run_convert(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ncflow.errors import InputError
-    from ncflow.skeleton.skeleton import save_skeleton
+    from ncflow.io.skeletons import save_skeleton
 
     if Path(args.output).suffix.lower() not in (".tgf", ".json"):
         raise InputError("can only write skeletons as .tgf or .json", args.output)

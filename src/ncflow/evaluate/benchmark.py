@@ -1,10 +1,10 @@
 """Benchmark runner: match and evaluate every pair of a ``pairs.csv`` (per method), then report.
 
 Input: a csv with columns ``name, source, target, skeleton, gt`` and optionally ``gt_format`` and
-``dataset`` (the file :func:`ncflow.pairs.write_pairs` / ``ncflow make-pairs`` writes); paths are
-relative to the csv. ``gt`` is ``identity``, a ground-truth file, or two template ``.vts`` files
-separated by ``;`` (with ``gt_format`` ``template``). Every row is checked (columns, files, names)
-before anything runs.
+``dataset`` (the file :func:`ncflow.synthetic.pairs.write_pairs` / ``ncflow make-pairs`` writes);
+paths are relative to the csv. ``gt`` is ``identity``, a ground-truth file, or two template
+``.vts`` files separated by ``;`` (with ``gt_format`` ``template``). Every row is checked (columns,
+files, names) before anything runs.
 
 Layout of ``OUT``::
 
@@ -36,22 +36,11 @@ from pathlib import Path
 
 from ncflow.config import Config, config_to_dict, with_metric
 from ncflow.errors import InputError
-from ncflow.evaluate.ground_truth import GT_FORMATS
-from ncflow.evaluate.report import EVALUATION_FILE, run_row, write_benchmark_report
-
-__all__ = [
-    "ABLATIONS",
-    "REQUIRED_COLUMNS",
-    "BenchmarkResult",
-    "Method",
-    "PairSpec",
-    "RunTask",
-    "ablation_config",
-    "benchmark_methods",
-    "read_pairs_csv",
-    "run_benchmark",
-    "run_task",
-]
+from ncflow.evaluate.aggregate import run_row
+from ncflow.evaluate.report import write_benchmark_report
+from ncflow.evaluate.score import EVALUATION_FILE
+from ncflow.io.atomic import atomic_write_text
+from ncflow.io.ground_truth import GT_FORMATS
 
 REQUIRED_COLUMNS = ("name", "source", "target", "skeleton", "gt")
 OPTIONAL_COLUMNS = ("gt_format", "dataset")
@@ -156,7 +145,8 @@ def read_pairs_csv(path: str | os.PathLike) -> list[PairSpec]:
             missing = [c for c in REQUIRED_COLUMNS if c not in header]
             if missing:
                 raise InputError(
-                    f"missing column(s) {', '.join(missing)} (expected {', '.join(REQUIRED_COLUMNS + OPTIONAL_COLUMNS)})",
+                    f"missing column(s) {', '.join(missing)} "
+                    f"(expected {', '.join(REQUIRED_COLUMNS + OPTIONAL_COLUMNS)})",
                     path,
                 )
             rows = [
@@ -191,6 +181,7 @@ class Method:
     config: Config
 
     def to_dict(self) -> dict:
+        """The method as written to ``runs/<id>/config.json``: ``id``, ``label``, ``description``, ``config``."""
         return {
             "id": self.id,
             "label": self.label,
@@ -241,7 +232,7 @@ def _evaluation_done(run_dir: Path) -> bool:
 
 def _match(task: RunTask) -> None:
     """Run the matcher and write the output contract (atomically) into the run folder."""
-    from ncflow.matcher import Matcher
+    from ncflow.match.matcher import Matcher
 
     p = task.pair
     result = Matcher(p.source, p.target, p.skeleton, task.config, quiet=True).run()
@@ -250,7 +241,7 @@ def _match(task: RunTask) -> None:
 
 def _evaluate(task: RunTask) -> dict:
     """Evaluate the run folder against the pair's ground truth; writes evaluation.json (last) and plots."""
-    from ncflow.evaluate.report import evaluate_result, write_evaluation
+    from ncflow.evaluate.score import evaluate_result, write_evaluation
 
     p = task.pair
     ev = evaluate_result(task.run_dir, p.source, p.target, p.gt, p.gt_format, geodesic_method=task.geodesic_method)
@@ -305,6 +296,7 @@ class BenchmarkResult:
 
     @property
     def n_failed(self) -> int:
+        """Number of runs that failed."""
         return sum(o["status"] == "failed" for o in self.outcomes)
 
 
@@ -331,7 +323,7 @@ def _write_method_configs(out: Path, methods: list[Method]) -> None:
         d = out / "runs" / m.id
         d.mkdir(parents=True, exist_ok=True)
         if not (d / "config.json").is_file():
-            (d / "config.json").write_text(json.dumps(m.to_dict(), indent=1) + "\n")
+            atomic_write_text(d / "config.json", json.dumps(m.to_dict(), indent=1) + "\n")
 
 
 def _execute(
@@ -371,7 +363,8 @@ def _describe(o: dict, rows: dict) -> str:
     if row is None:
         return head
     return (
-        f"{head} in {o['seconds']:.1f} s; geodesic AUC {row['geodesic_auc']:.3f}, Chamfer AUC {row['chamfer_auc']:.3f}, "
+        f"{head} in {o['seconds']:.1f} s; geodesic AUC {row['geodesic_auc']:.3f}, "
+        f"Chamfer AUC {row['chamfer_auc']:.3f}, "
         f"conformal AUC {row['conformal_auc']:.3f}, bone g/eps {row['max_bone_violation_ratio']:.3g}"
     )
 

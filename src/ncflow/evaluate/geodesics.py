@@ -40,13 +40,7 @@ import dataclasses
 import numpy as np
 from jaxtyping import Float, Int
 
-__all__ = [
-    "GeodesicInfo",
-    "surface_points",
-    "vertex_surface_points",
-    "insert_surface_points",
-    "pair_geodesic_distances",
-]
+from ncflow.geometry.barycentric import surface_points
 
 # barycentric clamp for inserted points: keeps them strictly inside their face (moves a point by
 # at most this fraction of the face size, far below any reported precision)
@@ -75,49 +69,8 @@ class GeodesicInfo:
     notes: list[str] = dataclasses.field(default_factory=list)
 
     def to_dict(self) -> dict:
+        """The fields as a plain dict (JSON-serialisable)."""
         return dataclasses.asdict(self)
-
-
-def surface_points(
-    vertices: Float[np.ndarray, "V 3"],
-    faces: Int[np.ndarray, "F 3"],
-    face: Int[np.ndarray, " n"],
-    bary: Float[np.ndarray, "n 3"],
-) -> Float[np.ndarray, "n 3"]:
-    """Positions Σ_k b_k x_{F[f, k]} of surface points (face, barycentric)."""
-    v = np.asarray(vertices, dtype=np.float64)
-    tri = v[np.asarray(faces)[np.asarray(face, dtype=np.int64)]]
-    return np.einsum("nk,nkd->nd", np.asarray(bary, dtype=np.float64), tri)
-
-
-def vertex_surface_points(
-    vertex: Int[np.ndarray, " n"], faces: Int[np.ndarray, "F 3"], n_vertices: int | None = None
-) -> tuple[Int[np.ndarray, " n"], Float[np.ndarray, "n 3"]]:
-    """Vertices as surface points: the lowest-index face containing each vertex, one-hot barycentrics.
-
-    Raises:
-        ValueError: a vertex is out of range or belongs to no face.
-    """
-    faces = np.asarray(faces, dtype=np.int64)
-    vertex = np.asarray(vertex, dtype=np.int64)
-    nv = int(faces.max()) + 1 if n_vertices is None else int(n_vertices)
-    if vertex.size and (vertex.min() < 0 or vertex.max() >= nv):
-        raise ValueError(f"vertex index out of range [0, {nv})")
-    # first face (and corner) of every vertex: scan faces in reverse so the lowest index wins
-    first_face = np.full(nv, -1, dtype=np.int64)
-    first_corner = np.full(nv, -1, dtype=np.int64)
-    f_idx = np.repeat(np.arange(faces.shape[0]), 3)[::-1]
-    corner = np.tile(np.arange(3), faces.shape[0])[::-1]
-    flat = faces.reshape(-1)[::-1]
-    first_face[flat] = f_idx
-    first_corner[flat] = corner
-    face = first_face[vertex]
-    if np.any(face < 0):
-        bad = int(vertex[np.argmax(face < 0)])
-        raise ValueError(f"vertex {bad} belongs to no face")
-    bary = np.zeros((vertex.size, 3))
-    bary[np.arange(vertex.size), first_corner[vertex]] = 1.0
-    return face, bary
 
 
 def _clean_bary(bary: np.ndarray) -> np.ndarray:
@@ -304,9 +257,12 @@ def pair_geodesic_distances(
     """Geodesic distance on the mesh between surface points p_j = (face_a[j], bary_a[j]) and q_j.
 
     Args:
-        vertices, faces: the mesh (distances in its units).
-        face_a, bary_a, face_b, bary_b: n pairs of surface points; barycentrics are clipped to
-            ≥ 0 and renormalised.
+        vertices: (V, 3) mesh vertex positions (distances are in their units).
+        faces: (F, 3) vertex indices of the mesh triangles.
+        face_a: (n,) face index of each first point p_j.
+        bary_a: (n, 3) barycentric coordinates of p_j in its face; clipped to ≥ 0 and renormalised.
+        face_b: (n,) face index of each second point q_j.
+        bary_b: (n, 3) barycentric coordinates of q_j in its face; clipped to ≥ 0 and renormalised.
         method: ``"auto"``, ``"exact"``, ``"heat"`` or ``"dijkstra"`` (see the module docstring).
         exact_below: for ``"auto"``, pairs whose chord is at most this are computed exactly
             (default: 0.25 · sqrt(surface area), i.e. every geodesic error below 0.25 in the
@@ -340,7 +296,7 @@ def pair_geodesic_distances(
         want_exact = todo
     elif method == "auto":
         if exact_below is None:
-            from ncflow.mesh import face_areas
+            from ncflow.geometry.mesh import face_areas
 
             exact_below = 0.25 * float(np.sqrt(face_areas(v, f).sum()))
         want_exact = todo & (np.linalg.norm(pa - pb, axis=1) <= exact_below)

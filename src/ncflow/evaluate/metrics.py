@@ -19,25 +19,8 @@ from jaxtyping import Bool, Float, Int
 
 from ncflow.errors import InputError
 from ncflow.evaluate.geodesics import GeodesicInfo, pair_geodesic_distances
-from ncflow.mesh import Mesh, enclosed_volume, face_areas
-
-__all__ = [
-    "TAU_MAX",
-    "unit_cube_scale",
-    "geodesic_errors",
-    "closest_points_on_surface",
-    "point_triangle_closest",
-    "chamfer_distances",
-    "triangle_singular_values",
-    "conformal_distortion",
-    "pck_curve",
-    "auc",
-    "error_summary",
-    "bone_violation",
-    "volume_change",
-    "inverted_triangles",
-    "evaluate_correspondence",
-]
+from ncflow.geometry.closest import closest_points_on_surface
+from ncflow.geometry.mesh import Mesh, enclosed_volume, face_areas
 
 TAU_MAX = {"geodesic": 0.20, "chamfer": 0.10, "conformal": 0.15}
 
@@ -47,7 +30,7 @@ TAU_MAX = {"geodesic": 0.20, "chamfer": 0.10, "conformal": 0.15}
 
 
 def unit_cube_scale(vertices: Float[np.ndarray, "V 3"]) -> float:
-    """s = 1 / (largest side of the axis-aligned bounding box); multiply coordinates by s."""
+    """S = 1 / (largest side of the axis-aligned bounding box); multiply coordinates by s."""
     v = np.asarray(vertices, dtype=np.float64)
     side = float(np.max(v.max(0) - v.min(0)))
     if not side > 0:
@@ -73,9 +56,10 @@ def geodesic_errors(
 
     Args:
         source: the source mesh X (rest pose).
-        pred_face, pred_bary: predicted source point of each evaluated target vertex
-            (face index, barycentric coordinates).
-        gt_face, gt_bary: the ground-truth source point of the same target vertices.
+        pred_face: (n,) source face index of the predicted point of each evaluated target vertex.
+        pred_bary: (n, 3) barycentric coordinates of that predicted point in its face.
+        gt_face: (n,) source face index of the ground-truth point of the same target vertices.
+        gt_bary: (n, 3) barycentric coordinates of that ground-truth point in its face.
         method: ``"auto"`` (exact polyhedral geodesics for errors up to ``exact_below``, heat
             method beyond), ``"exact"``, ``"heat"`` or ``"dijkstra"``; see
             :mod:`ncflow.evaluate.geodesics`.
@@ -96,122 +80,6 @@ def geodesic_errors(
 
 # ----------------------------------------------------------------------------------------------
 # Point-to-surface distance (exact)
-
-
-def point_triangle_closest(
-    p: Float[np.ndarray, "n 3"], a: Float[np.ndarray, "n 3"], b: Float[np.ndarray, "n 3"], c: Float[np.ndarray, "n 3"]
-) -> tuple[Float[np.ndarray, " n"], Float[np.ndarray, "n 3"]]:
-    """Exact closest point of triangle (a_i, b_i, c_i) to p_i (Ericson, Real-Time Collision Detection 5.1.5).
-
-    Returns:
-        (distance (n,), barycentric coordinates (n, 3) of the closest point).
-    """
-    p, a, b, c = (np.asarray(x, dtype=np.float64) for x in (p, a, b, c))
-    ab, ac, ap = b - a, c - a, p - a
-    d1 = np.einsum("ij,ij->i", ab, ap)
-    d2 = np.einsum("ij,ij->i", ac, ap)
-    bp = p - b
-    d3 = np.einsum("ij,ij->i", ab, bp)
-    d4 = np.einsum("ij,ij->i", ac, bp)
-    cp = p - c
-    d5 = np.einsum("ij,ij->i", ab, cp)
-    d6 = np.einsum("ij,ij->i", ac, cp)
-    va = d3 * d6 - d5 * d4
-    vb = d5 * d2 - d1 * d6
-    vc = d1 * d4 - d3 * d2
-    n = p.shape[0]
-    bary = np.empty((n, 3))
-    done = np.zeros(n, dtype=bool)
-
-    def put(mask, u, v, w):  # first matching Voronoi region wins
-        m = mask & ~done
-        for k, val in enumerate((u, v, w)):
-            bary[m, k] = np.broadcast_to(val, (n,))[m]
-        done[m] = True
-
-    with np.errstate(divide="ignore", invalid="ignore"):
-        put((d1 <= 0) & (d2 <= 0), 1.0, 0.0, 0.0)  # vertex a
-        put((d3 >= 0) & (d4 <= d3), 0.0, 1.0, 0.0)  # vertex b
-        t = d1 / (d1 - d3)
-        put((vc <= 0) & (d1 >= 0) & (d3 <= 0), 1 - t, t, 0.0)  # edge ab
-        put((d6 >= 0) & (d5 <= d6), 0.0, 0.0, 1.0)  # vertex c
-        t = d2 / (d2 - d6)
-        put((vb <= 0) & (d2 >= 0) & (d6 <= 0), 1 - t, 0.0, t)  # edge ac
-        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        put((va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0), 0.0, 1 - t, t)  # edge bc
-        denom = va + vb + vc
-        vv, ww = vb / denom, vc / denom
-        put(np.ones(n, dtype=bool), 1 - vv - ww, vv, ww)  # interior
-    # degenerate triangles can leave NaN: fall back to the nearest corner
-    bad = ~np.all(np.isfinite(bary), axis=1)
-    if np.any(bad):
-        dist_c = np.stack([np.linalg.norm(p[bad] - x[bad], axis=1) for x in (a, b, c)], 1)
-        bary[bad] = np.eye(3)[np.argmin(dist_c, axis=1)]
-    q = bary[:, 0:1] * a + bary[:, 1:2] * b + bary[:, 2:3] * c
-    return np.linalg.norm(p - q, axis=1), bary
-
-
-def closest_points_on_surface(
-    points: Float[np.ndarray, "n 3"],
-    vertices: Float[np.ndarray, "V 3"],
-    faces: Int[np.ndarray, "F 3"],
-    chunk: int = 20000,
-) -> tuple[Float[np.ndarray, " n"], Int[np.ndarray, " n"], Float[np.ndarray, "n 3"]]:
-    """Exact distance from points to a triangle mesh, with the closest face and barycentrics.
-
-    Exact (not a sampling): u = distance to the nearest vertex is an upper bound; a triangle
-    with bounding-sphere centre c_t (centroid) and radius r_t can only be within u of p if
-    ‖p − c_t‖ ≤ u + r_t. Triangles are bucketed by r_t (factors of 2), one KD-tree of centroids
-    per bucket; every candidate is tested with the exact point–triangle distance
-    (:func:`point_triangle_closest`). Ties go to the lowest face index.
-
-    Returns:
-        (distance (n,), face index (n,), barycentric coordinates of the foot point (n, 3)).
-    """
-    from scipy.spatial import cKDTree
-
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64)
-    tri = v[f]
-    cen = tri.mean(1)
-    rad = np.linalg.norm(tri - cen[:, None], axis=2).max(1)
-    used = np.unique(f)
-    vtree = cKDTree(v[used])
-    r0 = max(float(np.median(rad)), 1e-300)
-    level = np.floor(np.log2(np.maximum(rad, r0 * 1e-6) / r0)).astype(np.int64)
-    buckets = []
-    for lv in np.unique(level):
-        members = np.flatnonzero(level == lv)
-        buckets.append((members, float(rad[members].max()), cKDTree(cen[members])))
-    n = pts.shape[0]
-    best_d = np.full(n, np.inf)
-    best_f = np.zeros(n, dtype=np.int64)
-    best_b = np.zeros((n, 3))
-    for s in range(0, n, chunk):
-        p = pts[s : s + chunk]
-        u = vtree.query(p)[0] * (1 + 1e-12) + 1e-300
-        cand_p, cand_f = [], []
-        for members, rmax, tree in buckets:
-            lists = tree.query_ball_point(p, u + rmax, return_sorted=False)
-            lens = np.fromiter((len(x) for x in lists), dtype=np.int64, count=len(lists))
-            if lens.sum() == 0:
-                continue
-            local = np.fromiter((i for x in lists for i in x), dtype=np.int64, count=int(lens.sum()))
-            pi = np.repeat(np.arange(p.shape[0]), lens)
-            fi = members[local]
-            keep = np.linalg.norm(p[pi] - cen[fi], axis=1) <= u[pi] + rad[fi]
-            cand_p.append(pi[keep])
-            cand_f.append(fi[keep])
-        pi = np.concatenate(cand_p)
-        fi = np.concatenate(cand_f)
-        d, b = point_triangle_closest(p[pi], tri[fi, 0], tri[fi, 1], tri[fi, 2])
-        order = np.lexsort((fi, d, pi))  # per point: smallest distance, then lowest face
-        pi, fi, d, b = pi[order], fi[order], d[order], b[order]
-        first = np.concatenate([[True], pi[1:] != pi[:-1]])
-        rows = s + pi[first]
-        best_d[rows], best_f[rows], best_b[rows] = d[first], fi[first], b[first]
-    return best_d, best_f, best_b
 
 
 def chamfer_distances(
@@ -314,7 +182,7 @@ def _finite_or_inf(errors) -> np.ndarray:
 
 
 def pck_curve(
-    errors: Float[np.ndarray, "..."], tau_max: float, n_thresholds: int = 1001
+    errors: Float[np.ndarray, ...], tau_max: float, n_thresholds: int = 1001
 ) -> tuple[Float[np.ndarray, " k"], Float[np.ndarray, " k"]]:
     """Cumulative curve PCK(τ) = fraction of errors ≤ τ on the grid τ = linspace(0, τmax, k).
 
@@ -327,7 +195,7 @@ def pck_curve(
     return tau, np.searchsorted(e, tau, side="right") / e.size
 
 
-def auc(errors: Float[np.ndarray, "..."], tau_max: float) -> float:
+def auc(errors: Float[np.ndarray, ...], tau_max: float) -> float:
     """AUC = (1/τmax)∫₀^τmax PCK(τ) dτ = mean(max(0, 1 − e/τmax)) (NaN left out; NaN if none left)."""
     e = _finite_or_inf(errors)
     if e.size == 0:
@@ -335,7 +203,7 @@ def auc(errors: Float[np.ndarray, "..."], tau_max: float) -> float:
     return float(np.mean(np.maximum(0.0, 1.0 - e / float(tau_max))))
 
 
-def error_summary(errors: Float[np.ndarray, "..."], tau_max: float) -> dict:
+def error_summary(errors: Float[np.ndarray, ...], tau_max: float) -> dict:
     """{'mean', 'median', 'max', 'auc', 'tau_max', 'n', 'n_nan'} of an error array (NaN left out)."""
     raw = np.asarray(errors, dtype=np.float64).reshape(-1)
     e = _finite_or_inf(raw)
@@ -493,11 +361,14 @@ def evaluate_correspondence(
     """All metrics of one matched pair.
 
     Args:
-        source, target: the meshes (user coordinates; the source in its rest pose).
-        pred_face, pred_bary: for every target vertex, the predicted source point
+        source: the source mesh (user coordinates, rest pose).
+        target: the target mesh (user coordinates) with W vertices.
+        pred_face: (W,) for every target vertex, the source face of its predicted source point
             (``map_tgt_to_src.npz``).
-        gt_face, gt_bary: the true source point of every target vertex, or of the target
-            vertices ``gt_index`` (partial ground truth, e.g. template-based datasets).
+        pred_bary: (W, 3) barycentric coordinates of that predicted point in its face.
+        gt_face: (K,) source face of the true source point of every target vertex (K = W), or of
+            the target vertices ``gt_index`` (partial ground truth, e.g. template-based datasets).
+        gt_bary: (K, 3) barycentric coordinates of that true point in its face.
         deformed_vertices: (V, 3) flowed source at t = 1 in target coordinates; enables Chamfer.
             Defaults to ``frames[-1]`` when frames are given.
         frames: (T, V, 3) interpolation frames (source connectivity); enables conformal
@@ -576,3 +447,6 @@ def evaluate_correspondence(
         summary["inverted_mode"] = inverted_mode
         summary["volume_change"] = [float(x) for x in vol]
     return {"summary": summary, "arrays": arrays}
+
+
+CURVE_METRICS = ("geodesic", "chamfer", "conformal")

@@ -1,6 +1,9 @@
-"""Neural ODE flow: Flow-Net fields, the fixed-grid integrator with dense output (DESIGN.md "Flow"),
-the GSO-Net local-rotation network (DESIGN.md "Soft tissue") and the skeleton-driven field
-(:class:`SkinnedField`)."""
+"""Neural ODE flow: Flow-Net fields, the integrator, the GSO-Net and the skeleton-driven field.
+
+The Flow-Net fields and the fixed-grid integrator with dense output (DESIGN.md "Flow"), the GSO-Net
+local-rotation network (DESIGN.md "Soft tissue") and the skeleton-driven field
+(:class:`SkinnedField`).
+"""
 
 from ncflow.flow.fields import DivFreeFlowField, FlowField, divergence, make_flow_field
 from ncflow.flow.gso import GSONet, rotation_angle, rotation_from_6d

@@ -1,5 +1,4 @@
-"""Flow-Net: the time-dependent velocity field F_θ(x, t) of the neural ODE (paper Eq. 12, §4.6;
-DESIGN.md "Flow").
+"""Flow-Net: the time-dependent velocity field F_θ(x, t) of the neural ODE (paper Eq. 12, §4.6; DESIGN.md "Flow").
 
 Standard field: F_θ(x, t) = α · MLP([x, t]), an MLP R⁴ → R³ with ``depth`` hidden layers of
 ``width`` units and (tanh-approximate) GELU activations, identity output, and a trainable scalar
@@ -22,8 +21,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
-
-__all__ = ["FlowField", "DivFreeFlowField", "make_flow_field", "divergence"]
 
 DEFAULT_WIDTH = 256
 DEFAULT_DEPTH = 6

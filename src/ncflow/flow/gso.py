@@ -1,5 +1,6 @@
-"""GSO-Net: a small network predicting a local rotation R(x, t) ∈ SO(3) for the surface
-distortion term (paper §4.4 and Eq. 22, the GSO-Net φ; DESIGN.md "Soft tissue"; reference-notes §7.2).
+"""GSO-Net: a small network predicting a local rotation R(x, t) ∈ SO(3) for the surface distortion term.
+
+Paper §4.4 and Eq. 22 (the GSO-Net φ); DESIGN.md "Soft tissue"; reference-notes §7.2.
 
 Network: an MLP R⁴ → R⁶ on [x, y, z, t] (a *deformed* point at grid time t, raw t), ``depth``
 hidden layers of ``width`` units (default 3 × 128, as the release), tanh-approximate GELU,
@@ -31,8 +32,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, PRNGKeyArray
-
-__all__ = ["IDENTITY_6D", "GSONet", "rotation_angle", "rotation_from_6d"]
 
 IDENTITY_6D = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0)
 """The 6-D code of the identity rotation: first two columns of I."""

@@ -1,5 +1,6 @@
-"""Fixed-grid integration of the flow ODE dx/dt = F(x, t) and dense output (paper Eq. 13;
-DESIGN.md "Flow"; reference-notes §8.3).
+"""Fixed-grid integration of the flow ODE dx/dt = F(x, t) and dense output.
+
+Paper Eq. 13; DESIGN.md "Flow"; reference-notes §8.3.
 
 Grid t_k = k/(T−1), k = 0..T−1, step h = 1/(T−1). The recursion is the one the release's
 probabilistic solver (IWP(1) prior, EK0, fixed grid) reduces to exactly:
@@ -15,6 +16,10 @@ full-resolution mesh) can be moved by a trained field (:func:`flow_points`).
 
 A field is any callable ``field(x (N, 3), t scalar) -> (N, 3)``; Equinox modules and closures
 both work. States and slopes are kept in the dtype of x0 (field outputs are cast to it).
+
+Written here rather than taken from an ODE library: the recursion is a few lines of ``lax.scan``,
+and a library's Heun method evaluates the slope at x_k as well as at the predicted point (two
+field evaluations per step), which is not the release's scheme and gives other numbers.
 """
 
 from __future__ import annotations
@@ -25,8 +30,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
-
-__all__ = ["time_grid", "integrate", "hermite", "flow_points"]
 
 Field = Callable[[Float[Array, "N 3"], Float[Array, ""]], Float[Array, "N 3"]]
 

@@ -29,18 +29,16 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from ncflow.flow.integrate import time_grid
 from ncflow.skeleton import Skeleton
 from ncflow.skeleton.dualquat import dq_rotation, dq_translation, quat_to_matrix
 from ncflow.skeleton.kinematics import Pose, bone_motions, rest_pose
 
-__all__ = ["SkinnedField", "skinning_weights", "bone_velocities"]
-
 
 def bone_velocities(
-    skeleton: Skeleton, pose: Pose, t: Float[Array, ""], interp: str = "sclerp", h: float = 1e-3
+    skeleton: Skeleton, pose: Pose, t: Float[ArrayLike, ""], interp: str = "sclerp", h: float = 1e-3
 ) -> tuple[Float[Array, "B 3 3"], Float[Array, "B 3"], Float[Array, "B 3 3"], Float[Array, "B 3"]]:
     """Each bone's rigid motion at time t, x ↦ R_b x + c_b, and its time derivative (Ṙ_b, ċ_b).
 
@@ -53,6 +51,21 @@ def bone_velocities(
     m = jax.vmap(lambda s: bone_motions(skeleton, pose, s, interp))(jnp.stack([t, t - h, t + h]))
     r, c = quat_to_matrix(dq_rotation(m)), dq_translation(m)
     return r[0], c[0], (r[2] - r[1]) / (2 * h), (c[2] - c[1]) / (2 * h)
+
+
+def swing_only(skeleton: Skeleton, pose: Pose) -> Pose:
+    """``pose`` with the twist of every joint that has exactly one child bone removed: its rotation's
+    vector part projected off the child bone's rest axis (:meth:`SkinnedField.swing_pose`).
+    """
+    par = np.asarray(skeleton.parents)[1:]  # parent of each bone's end joint
+    single = np.bincount(par, minlength=skeleton.n_joints)[par] == 1
+    off = np.asarray(skeleton.offsets)[1:][single]
+    axes = np.zeros((skeleton.n_joints, 3))
+    axes[par[single]] = off / np.linalg.norm(off, axis=1, keepdims=True)
+    q = pose.rotations
+    a = jnp.asarray(axes, q.dtype)
+    v = q[:, 1:] - jnp.sum(q[:, 1:] * a, -1, keepdims=True) * a
+    return Pose(jnp.concatenate([q[:, :1], v], -1), pose.translation)
 
 
 def _segment_distance(x: Float[Array, "N 3"], a: Float[Array, "B 3"], b: Float[Array, "B 3"]) -> Float[Array, "N B"]:
@@ -113,16 +126,9 @@ class SkinnedField(eqx.Module):
         axis). Twist about a nearly round limb (a finger, a capsule) barely shows in the data
         term, and a trained twist drifts with the sign-like optimiser steps (a spin of a bone and
         an opposite turn of its child's bending axis look alike); the Flow-Net carries whatever
-        twist the shapes need, and the fitted output skeleton keeps it."""
-        par = np.asarray(self.skeleton.parents)[1:]  # parent of each bone's end joint
-        single = np.bincount(par, minlength=self.skeleton.n_joints)[par] == 1
-        off = np.asarray(self.skeleton.offsets)[1:][single]
-        axes = np.zeros((self.skeleton.n_joints, 3))
-        axes[par[single]] = off / np.linalg.norm(off, axis=1, keepdims=True)
-        q = self.pose.rotations
-        a = jnp.asarray(axes, q.dtype)
-        v = q[:, 1:] - jnp.sum(q[:, 1:] * a, -1, keepdims=True) * a
-        return Pose(jnp.concatenate([q[:, :1], v], -1), self.pose.translation)
+        twist the shapes need, and the fitted output skeleton keeps it.
+        """
+        return swing_only(self.skeleton, self.pose)
 
     def _motion(self, t):
         """(heads, tails, c, Ω, ċ) of every bone at time t: its posed segment and its velocity."""
@@ -146,9 +152,10 @@ class SkinnedField(eqx.Module):
         """Velocities at points x (N, 3) and time t (scalar)."""
         return self.skeleton_velocity(x, t) + self.residual(x, t)
 
-    def on_grid(self, n_times: int, dtype=None) -> "_GridSkinnedField":
+    def on_grid(self, n_times: int, dtype=None) -> _GridSkinnedField:
         """The same field for the integrator's grid t_k = k/(T−1): the bones' motions at the T grid
-        times are computed once (one batched forward kinematics) instead of at every evaluation."""
+        times are computed once (one batched forward kinematics) instead of at every evaluation.
+        """
         times = time_grid(n_times, dtype or self.pose.rotations.dtype)
         return _GridSkinnedField(self.residual, jax.vmap(self._motion)(times), self.width, n_times)
 
@@ -164,7 +171,8 @@ def _blend(x, motion, width):
 
 class _GridSkinnedField(eqx.Module):
     """A :class:`SkinnedField` whose bone motions are tabulated at t_k = k/(T−1); called at a grid
-    time (the integrator only evaluates there), it looks the motions up."""
+    time (the integrator only evaluates there), it looks the motions up.
+    """
 
     residual: eqx.Module
     motion: tuple

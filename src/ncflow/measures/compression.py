@@ -29,8 +29,6 @@ from ncflow.measures.kernels import kernel_matvec, kernel_self_sum
 from ncflow.measures.normal_cycles import NormalCycle, _nc_features
 from ncflow.measures.varifold import Varifold, varifold_features
 
-__all__ = ["CompressionReport", "compress_varifold", "compress_normal_cycle", "leverage_scores"]
-
 
 @dataclasses.dataclass(frozen=True)
 class CompressionReport:
@@ -51,6 +49,7 @@ class CompressionReport:
     indices: np.ndarray
 
     def to_dict(self) -> dict:
+        """The scalar fields (``n``, ``m``, ``relative_error``, ``seconds``) as a plain dict; ``indices`` left out."""
         return {"n": self.n, "m": self.m, "relative_error": self.relative_error, "seconds": self.seconds}
 
 

@@ -19,9 +19,7 @@ import functools
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float
-
-__all__ = ["kernel_sum", "kernel_self_sum", "kernel_matvec", "DEFAULT_BLOCK"]
+from jaxtyping import Array, ArrayLike, Float
 
 DEFAULT_BLOCK = (512, 2048)
 
@@ -118,10 +116,10 @@ _kernel_sum.defvjp(_kernel_sum_fwd, _kernel_sum_bwd, symbolic_zeros=True)
 
 
 def kernel_sum(
-    x: Float[Array, "N D"],
-    u: Float[Array, "N K"],
-    y: Float[Array, "M D"],
-    v: Float[Array, "M K"],
+    x: Float[ArrayLike, "N D"],
+    u: Float[ArrayLike, "N K"],
+    y: Float[ArrayLike, "M D"],
+    v: Float[ArrayLike, "M K"],
     block: tuple[int, int] = DEFAULT_BLOCK,
 ) -> Float[Array, ""]:
     """S = Σ_ij exp(−‖x_i − y_j‖²) ⟨u_i, v_j⟩, blocked, differentiable in all four inputs.
@@ -163,7 +161,7 @@ _kernel_self_sum.defvjp(_kernel_self_sum_fwd, _kernel_self_sum_bwd, symbolic_zer
 
 
 def kernel_self_sum(
-    x: Float[Array, "N D"], u: Float[Array, "N K"], block: tuple[int, int] = DEFAULT_BLOCK
+    x: Float[ArrayLike, "N D"], u: Float[ArrayLike, "N K"], block: tuple[int, int] = DEFAULT_BLOCK
 ) -> Float[Array, ""]:
     """S(x, u; x, u) = Σ_ij exp(−‖x_i − x_j‖²) ⟨u_i, u_j⟩ with a one-sided (half-cost) gradient pass."""
     x, u = jnp.asarray(x), jnp.asarray(u)
@@ -172,7 +170,10 @@ def kernel_self_sum(
 
 
 def kernel_matvec(
-    x: Float[Array, "N D"], y: Float[Array, "M D"], v: Float[Array, "M K"], block: tuple[int, int] = DEFAULT_BLOCK
+    x: Float[ArrayLike, "N D"],
+    y: Float[ArrayLike, "M D"],
+    v: Float[ArrayLike, "M K"],
+    block: tuple[int, int] = DEFAULT_BLOCK,
 ) -> Float[Array, "N K"]:
     """r_i = Σ_j exp(−‖x_i − y_j‖²) v_j, blocked (not differentiated; used by compression)."""
     x, y, v = jnp.asarray(x), jnp.asarray(y), jnp.asarray(v)

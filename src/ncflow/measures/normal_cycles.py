@@ -25,15 +25,15 @@ import math
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
+from ncflow.geometry.topology import Topology
 from ncflow.measures.kernels import DEFAULT_BLOCK, kernel_self_sum, kernel_sum
-from ncflow.mesh import Topology
 
-__all__ = ["NormalCycle", "normal_cycle", "normal_cycle_inner", "normal_cycle_distance", "safe_normalize"]
+Scale = float | Float[Array, ""]  # a kernel scale: a number, or a traced scalar inside jit
 
 
-def safe_normalize(v: Float[Array, "... 3"]) -> tuple[Float[Array, "... 3"], Float[Array, "..."]]:
+def safe_normalize(v: Float[ArrayLike, "... 3"]) -> tuple[Float[Array, "... 3"], Float[Array, ...]]:
     """(v/‖v‖, ‖v‖), with (0, 0) for vectors shorter than ~1e-18 (float64) / 1e-15 (float32); NaN-free gradients."""
     sq = jnp.sum(v * v, axis=-1)
     tiny = jnp.asarray(1e-36 if v.dtype == jnp.float64 else 1e-30, v.dtype)
@@ -54,7 +54,7 @@ class NormalCycle(eqx.Module):
         return int(self.centers.shape[0])
 
 
-def normal_cycle(vertices: Float[Array, "V 3"], topology: Topology) -> NormalCycle:
+def normal_cycle(vertices: Float[ArrayLike, "V 3"], topology: Topology) -> NormalCycle:
     """The Normal Cycle representation of a mesh (Algorithm 1), differentiable in the vertices.
 
     Args:
@@ -87,12 +87,12 @@ def normal_cycle(vertices: Float[Array, "V 3"], topology: Topology) -> NormalCyc
     return NormalCycle(centers=centers, weights=weights)
 
 
-def _nc_features(x: NormalCycle, sigma: float) -> tuple[Float[Array, "N 3"], Float[Array, "N 12"]]:
+def _nc_features(x: NormalCycle, sigma: Scale) -> tuple[Float[Array, "N 3"], Float[Array, "N 12"]]:
     return x.centers / (math.sqrt(2.0) * sigma), x.weights
 
 
 def normal_cycle_inner(
-    x: NormalCycle, y: NormalCycle, sigma: float, block: tuple[int, int] = DEFAULT_BLOCK
+    x: NormalCycle, y: NormalCycle, sigma: Scale, block: tuple[int, int] = DEFAULT_BLOCK
 ) -> Float[Array, ""]:
     """⟨X, Y⟩ = Σ_pq exp(−‖c_p − c_q‖²/(2σ²)) ⟨w_p, w_q⟩ (edge terms + boundary-vertex terms)."""
     if x is y:
@@ -101,7 +101,7 @@ def normal_cycle_inner(
 
 
 def normal_cycle_distance(
-    x: NormalCycle, y: NormalCycle, sigma: float, block: tuple[int, int] = DEFAULT_BLOCK
+    x: NormalCycle, y: NormalCycle, sigma: Scale, block: tuple[int, int] = DEFAULT_BLOCK
 ) -> Float[Array, ""]:
     """d(X, Y) = ⟨X,X⟩ + ⟨Y,Y⟩ − 2⟨X,Y⟩ (all three terms evaluated)."""
     return (

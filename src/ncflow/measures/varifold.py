@@ -20,12 +20,10 @@ import math
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, ArrayLike, Float, Int
 
 from ncflow.measures.kernels import DEFAULT_BLOCK, kernel_self_sum, kernel_sum
-from ncflow.measures.normal_cycles import safe_normalize
-
-__all__ = ["Varifold", "varifold", "varifold_features", "varifold_inner", "varifold_distance"]
+from ncflow.measures.normal_cycles import Scale, safe_normalize
 
 
 class Varifold(eqx.Module):
@@ -45,7 +43,7 @@ class Varifold(eqx.Module):
         return int(self.centers.shape[0])
 
 
-def varifold(vertices: Float[Array, "V 3"], faces: Int[np.ndarray, "F 3"]) -> Varifold:
+def varifold(vertices: Float[ArrayLike, "V 3"], faces: Int[np.ndarray, "F 3"]) -> Varifold:
     """The varifold of a triangle mesh: face centres, unit normals and areas (differentiable in vertices)."""
     v = jnp.asarray(vertices)
     tri = v[jnp.asarray(faces)]
@@ -55,7 +53,7 @@ def varifold(vertices: Float[Array, "V 3"], faces: Int[np.ndarray, "F 3"]) -> Va
 
 
 def varifold_features(
-    x: Varifold, sigma: float, sigma_normal: float
+    x: Varifold, sigma: Scale, sigma_normal: Scale
 ) -> tuple[Float[Array, "N 6"], Float[Array, "N 1"]]:
     """Scaled 6-D features and weights for which the varifold kernel is exp(−‖z − z'‖²)."""
     z = jnp.concatenate([x.centers / (math.sqrt(2.0) * sigma), x.normals / (2.0 * sigma_normal)], axis=1)
@@ -65,7 +63,7 @@ def varifold_features(
 
 
 def varifold_inner(
-    x: Varifold, y: Varifold, sigma: float, sigma_normal: float = 0.5, block: tuple[int, int] = DEFAULT_BLOCK
+    x: Varifold, y: Varifold, sigma: Scale, sigma_normal: Scale = 0.5, block: tuple[int, int] = DEFAULT_BLOCK
 ) -> Float[Array, ""]:
     """⟨X, Y⟩ = Σ_ij a_i b_j exp(−‖c_i − c_j‖²/(2σ²)) exp(n_i·n_j/(2σ_n²))."""
     if x is y:
@@ -76,7 +74,7 @@ def varifold_inner(
 
 
 def varifold_distance(
-    x: Varifold, y: Varifold, sigma: float, sigma_normal: float = 0.5, block: tuple[int, int] = DEFAULT_BLOCK
+    x: Varifold, y: Varifold, sigma: Scale, sigma_normal: Scale = 0.5, block: tuple[int, int] = DEFAULT_BLOCK
 ) -> Float[Array, ""]:
     """d(X, Y) = ⟨X,X⟩ + ⟨Y,Y⟩ − 2⟨X,Y⟩ (all three terms evaluated)."""
     return (

@@ -1,12 +1,12 @@
 """Optimisers (cautious AdaBelief / VectorAdam), learning-rate schedules and MDMM constraints
-(DESIGN.md "Optimiser", "Constraints (MDMM)")."""
+(DESIGN.md "Optimiser", "Constraints (MDMM)").
+"""
 
 from ncflow.optim.mdmm import (
-    clamp_multipliers,
+    ascend_multipliers,
     mdmm_term,
-    reverse_gradient,
+    multiplier_rate,
     soft_constraint_term,
-    update_multipliers,
     violation,
 )
 from ncflow.optim.optimizers import (
@@ -20,15 +20,14 @@ from ncflow.optim.schedules import piecewise_phases, warmup_constant, warmup_cos
 
 __all__ = [
     "adabelief_cautious",
+    "ascend_multipliers",
+    "multiplier_rate",
     "cautious",
-    "clamp_multipliers",
     "is_vector_array",
     "mdmm_term",
     "piecewise_phases",
-    "reverse_gradient",
     "scale_by_vector_adam",
     "soft_constraint_term",
-    "update_multipliers",
     "vectoradam_cautious",
     "violation",
     "warmup_constant",

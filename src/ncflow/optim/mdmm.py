@@ -3,37 +3,20 @@
 
 Convention (ours, the paper's sign): violation Γ_k = max(g_k − ε, 0) ≥ 0, multipliers λ_k ≥ 0,
 
-    M(g, λ) = Σ_k λ_k Γ_k + (δ/2) Σ_k Γ_k²          (added to the loss),
+    M(g, λ) = Σ_k λ_k Γ_k + (δ/2) Σ_k Γ_k²          (added to the loss, :func:`mdmm_term`),
 
-gradient descent on the model parameters and ascent on λ with projection to λ ≥ 0:
-λ ← max(0, λ + η_λ Γ). (The authors' release uses Γ' = −Γ and lets λ go negative, unclamped — the
-same dynamics up to the sign of λ; reference-notes §9.1.) Since Γ = 0 on satisfied constraints,
-their multipliers are not driven down; they stay where the violations left them.
-
-Two ways to compose with an Optax optimiser on the model parameters:
-
-* explicit: ``loss = L + mdmm_term(g, lam, eps, damping)`` with ``lam`` held outside the
-  differentiated parameters, then ``lam = update_multipliers(lam, g, eps, lr)`` each step;
-* reversed gradient: keep ``lam`` inside the parameter pytree and use
-  ``mdmm_term(g, reverse_gradient(lam), ...)``. The identity :func:`reverse_gradient` negates the
-  cotangent, so the optimiser's descent step is an ascent step in λ; follow every update with
-  :func:`clamp_multipliers`.
+gradient descent on the model parameters, and ascent on λ held outside the differentiated
+parameters. The ascent the matcher runs is :func:`ascend_multipliers` — a sign ascent
+λ ← max(0, λ + η_t sign(g − target)) with the ramped rate of :func:`multiplier_rate`, rather than
+the paper's proportional λ + η Γ (the reasons are in its docstring). (The authors' release uses
+Γ' = −Γ and lets λ go negative, unclamped; reference-notes §9.1.) The soft mode is the ARC-Flow
+baseline: a fixed-weight penalty, :func:`soft_constraint_term`.
 """
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float
-
-__all__ = [
-    "violation",
-    "mdmm_term",
-    "update_multipliers",
-    "reverse_gradient",
-    "clamp_multipliers",
-    "soft_constraint_term",
-]
+from jaxtyping import Array, ArrayLike, Float
 
 
 def violation(g: Float[Array, " B"], eps: float | Float[Array, " B"]) -> Float[Array, " B"]:
@@ -55,7 +38,7 @@ def mdmm_term(
     :func:`reverse_gradient`).
     """
     gamma = violation(g, eps)
-    per = lam * gamma + 0.5 * damping * gamma * gamma
+    per = lam * gamma + 0.5 * damping * gamma**2
     if reduction == "sum":
         return jnp.sum(per)
     if reduction == "mean":
@@ -63,33 +46,34 @@ def mdmm_term(
     raise ValueError(f"reduction must be 'sum' or 'mean', got {reduction!r}")
 
 
-def update_multipliers(
-    lam: Float[Array, " B"], g: Float[Array, " B"], eps: float | Float[Array, " B"], lr: float
-) -> Float[Array, " B"]:
-    """Projected ascent step λ ← max(0, λ + lr · Γ) (paper Eq. 27 with thresholding)."""
-    return jnp.maximum(lam + lr * violation(g, eps), 0.0)
+def multiplier_rate(lr: float, progress: Float[ArrayLike, "*batch"]) -> Float[ArrayLike, "*batch"]:
+    """Step size η_t = 2 η · progress of the multiplier ascent (``progress`` = step / total steps in [0, 1]).
+
+    The ramp lets the shape match first while λ is small and tightens the bones late; its mean over
+    the run is η (``constraints.multiplier_lr``).
+    """
+    return lr * 2.0 * progress
 
 
-@jax.custom_vjp
-def reverse_gradient(x: Array) -> Array:
-    """Identity in the forward pass; the cotangent is negated in the backward pass."""
-    return x
+def ascend_multipliers(
+    lam: Float[Array, "*batch B"],
+    g: Float[Array, "*batch B"],
+    target: float | Float[Array, "*batch B"],
+    rate: float | Float[Array, ""],
+    active: float | Float[Array, "*batch 1"] = 1.0,
+) -> Float[Array, "*batch B"]:
+    """The multiplier rule the matcher runs: λ ← max(0, λ + η_t · a · sign(g − target)).
 
-
-def _reverse_fwd(x):
-    return x, None
-
-
-def _reverse_bwd(_, ct):
-    return (jax.tree.map(jnp.negative, ct),)
-
-
-reverse_gradient.defvjp(_reverse_fwd, _reverse_bwd)
-
-
-def clamp_multipliers(lam: Float[Array, " B"]) -> Float[Array, " B"]:
-    """Projection onto λ ≥ 0 after an optimiser step (reversed-gradient formulation)."""
-    return jnp.maximum(lam, 0.0)
+    A normalised (sign) ascent on Eq. 27, projected on λ ≥ 0: every violated constraint gains η_t,
+    every satisfied one loses η_t until its multiplier reaches 0 — unlike the proportional rule
+    λ + η Γ of the paper, a constraint that is met releases its multiplier, and the step does not
+    depend on the scale of g (the release moves its multipliers with sign-like Adam steps, the same
+    normalisation; reference-notes §9.1). ``target`` is the level the constraint is held at (the
+    matcher uses margin · ε, so that the values MDMM settles around stay under ε); ``active``
+    (0 or 1, broadcast against ``lam``) freezes multipliers of constraints that are switched off
+    in a phase.
+    """
+    return jnp.maximum(lam + rate * active * jnp.sign(g - target), 0.0)
 
 
 def soft_constraint_term(

@@ -33,15 +33,6 @@ import jax.numpy as jnp
 import optax
 from jaxtyping import Array
 
-__all__ = [
-    "adabelief_cautious",
-    "vectoradam_cautious",
-    "cautious",
-    "scale_by_vector_adam",
-    "is_vector_array",
-    "MIN_KEPT_FRACTION",
-]
-
 MIN_KEPT_FRACTION = 1e-3
 
 
@@ -55,8 +46,9 @@ def _never_vector(x: Array) -> bool:
 
 
 def _cautious_mask(u: Array, g: Array, pooled: bool) -> Array:
-    """u masked by u·g > 0 (per component, or per row of 3 when ``pooled``) and divided by
-    max(fraction kept, 10⁻³)."""
+    """U masked by u·g > 0 (per component, or per row of 3 when ``pooled``) and divided by
+    max(fraction kept, 10⁻³).
+    """
     agree = jnp.sum(u * g, axis=-1, keepdims=True) if pooled else u * g
     keep = (agree > 0).astype(u.dtype)
     frac = jnp.mean(keep)
@@ -87,7 +79,8 @@ def cautious(
 
 class ScaleByVectorAdamState(NamedTuple):
     """Step count (int32 scalar), first moments mu (as params), second moments nu (per row of 3
-    for vector arrays: shape (..., 1); otherwise as params)."""
+    for vector arrays: shape (..., 1); otherwise as params).
+    """
 
     count: Array
     mu: Any
@@ -101,7 +94,8 @@ def scale_by_vector_adam(
     is_vector: Callable[[Array], bool] = is_vector_array,
 ) -> optax.GradientTransformation:
     """VectorAdam (Ling et al. 2022): m ← b1 m + (1−b1) g; n ← b2 n + (1−b2) ‖g_row‖² for vector
-    arrays (g² per component otherwise); u = m̂ / (√n̂ + eps) with bias corrections 1 − b^t."""
+    arrays (g² per component otherwise); u = m̂ / (√n̂ + eps) with bias corrections 1 − b^t.
+    """
 
     def second(g: Array) -> Array:
         return jnp.sum(g * g, axis=-1, keepdims=True) if is_vector(g) else g * g
@@ -131,7 +125,7 @@ def scale_by_vector_adam(
 
 def _clipped_decayed(
     core: optax.GradientTransformation,
-    learning_rate: float | optax.Schedule,
+    learning_rate: optax.ScalarOrSchedule,
     weight_decay: float,
     clip_norm: float | None,
     weight_decay_mask: Any,
@@ -146,7 +140,7 @@ def _clipped_decayed(
 
 
 def adabelief_cautious(
-    learning_rate: float | optax.Schedule,
+    learning_rate: optax.ScalarOrSchedule,
     b1: float = 0.9,
     b2: float = 0.999,
     eps: float = 1e-16,
@@ -157,13 +151,14 @@ def adabelief_cautious(
     """The authors' release optimiser (reference-notes §10.1): global-norm clip → AdaBelief
     (s uses the updated m; eps added to s and to √ŝ) → cautious mask per array → decoupled weight
     decay → −η_t. ``clip_norm=None`` disables clipping; ``weight_decay_mask`` (a pytree of bools or
-    a callable, as :func:`optax.add_decayed_weights`) restricts the decay (default: all leaves)."""
+    a callable, as :func:`optax.add_decayed_weights`) restricts the decay (default: all leaves).
+    """
     core = cautious(optax.scale_by_belief(b1=b1, b2=b2, eps=eps, eps_root=eps))
     return _clipped_decayed(core, learning_rate, weight_decay, clip_norm, weight_decay_mask)
 
 
 def vectoradam_cautious(
-    learning_rate: float | optax.Schedule,
+    learning_rate: optax.ScalarOrSchedule,
     b1: float = 0.9,
     b2: float = 0.999,
     eps: float = 1e-8,
@@ -174,6 +169,7 @@ def vectoradam_cautious(
 ) -> optax.GradientTransformation:
     """The paper's optimiser (§4.6): global-norm clip → VectorAdam (rows of 3 share one second
     moment, see the module docstring) → cautious mask (per row of 3 for vector arrays, per
-    component otherwise) → decoupled weight decay → −η_t. ``eps`` defaults to Adam's 10⁻⁸."""
+    component otherwise) → decoupled weight decay → −η_t. ``eps`` defaults to Adam's 10⁻⁸.
+    """
     core = cautious(scale_by_vector_adam(b1=b1, b2=b2, eps=eps, is_vector=is_vector), is_vector=is_vector)
     return _clipped_decayed(core, learning_rate, weight_decay, clip_norm, weight_decay_mask)

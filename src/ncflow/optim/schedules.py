@@ -14,11 +14,9 @@ import jax.numpy as jnp
 import optax
 from jaxtyping import Array, Float, Int
 
-__all__ = ["warmup_cosine", "warmup_constant", "piecewise_phases"]
-
 
 def _warmup(peak: float, warmup_steps: int, s: Array) -> Array:
-    """peak · s / warmup_steps for s < warmup_steps (peak afterwards)."""
+    """Peak · s / warmup_steps for s < warmup_steps (peak afterwards)."""
     if warmup_steps <= 0:
         return jnp.full_like(s, peak)
     return peak * jnp.minimum(s / warmup_steps, 1.0)
@@ -29,7 +27,8 @@ def warmup_cosine(peak: float, end: float, warmup_steps: int, total_steps: int) 
 
         η(s) = end + (peak − end) · ½ (1 + cos(π (s − warmup_steps) / (total_steps − warmup_steps))),
 
-    and ``end`` for s ≥ total_steps (total_steps counts the warm-up; reference-notes §10.2)."""
+    and ``end`` for s ≥ total_steps (total_steps counts the warm-up; reference-notes §10.2).
+    """
     if total_steps <= warmup_steps:
         raise ValueError(f"total_steps ({total_steps}) must exceed warmup_steps ({warmup_steps})")
 
@@ -54,7 +53,8 @@ def warmup_constant(peak: float, warmup_steps: int) -> optax.Schedule:
 def piecewise_phases(phases: Sequence[tuple[int, optax.Schedule]]) -> optax.Schedule:
     """Concatenate phases [(n_steps, schedule), ...]: during phase i (global steps
     [S_i, S_i + n_i), S_i = n_0 + … + n_{i−1}) the rate is schedule_i(s − S_i). After the last phase
-    its schedule continues with its own count."""
+    its schedule continues with its own count.
+    """
     if not phases:
         raise ValueError("piecewise_phases needs at least one phase")
     boundaries = list(itertools.accumulate(int(n) for n, _ in phases))[:-1]

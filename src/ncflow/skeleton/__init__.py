@@ -1,6 +1,22 @@
-"""Articulated skeletons: dual quaternions, skeleton files, forward kinematics and bone samples
-(paper §4.3 and Appendices B–C; DESIGN.md "Skeleton", "Bone samples")."""
+"""Articulated skeletons: dual quaternions, skeleton files, forward kinematics and bone samples.
 
+Paper §4.3 and Appendices B–C; docs/architecture.md, "Skeleton" and "Bone samples". Re-exports the
+:class:`~ncflow.geometry.skeleton.Skeleton` type and the skeleton file readers and writers of
+:mod:`ncflow.io.skeletons` beside the JAX kinematics, so ``from ncflow.skeleton import Skeleton``
+is the one import users need.
+"""
+
+from ncflow.geometry.skeleton import Skeleton, validate_skeleton
+from ncflow.io.skeletons import (
+    SKELETON_SUFFIXES,
+    load_skeleton,
+    read_skeleton_json,
+    read_tgf,
+    save_skeleton,
+    write_skeleton_json,
+    write_tgf,
+)
+from ncflow.skeleton.checks import check_inside
 from ncflow.skeleton.dualquat import (
     dq_conj,
     dq_dual_conj,
@@ -52,18 +68,6 @@ from ncflow.skeleton.kinematics import (
     rigid_reference,
 )
 from ncflow.skeleton.samples import BoneSamples, bone_axes, n_axis_samples, sample_bones
-from ncflow.skeleton.skeleton import (
-    SKELETON_SUFFIXES,
-    Skeleton,
-    check_inside,
-    load_skeleton,
-    read_skeleton_json,
-    read_tgf,
-    save_skeleton,
-    validate_skeleton,
-    write_skeleton_json,
-    write_tgf,
-)
 
 __all__ = [
     "BoneSamples",

@@ -29,43 +29,6 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
-__all__ = [
-    "quat_mul",
-    "quat_conj",
-    "quat_normalize",
-    "quat_rotate",
-    "quat_to_matrix",
-    "quat_from_matrix",
-    "quat_exp",
-    "quat_log",
-    "quat_pow",
-    "quat_from_axis_angle",
-    "quat_from_rotvec",
-    "slerp",
-    "dq_identity",
-    "dq_from_rt",
-    "dq_to_rt",
-    "dq_rotation",
-    "dq_translation",
-    "dq_from_matrix",
-    "dq_to_matrix",
-    "dq_mul",
-    "dq_conj",
-    "dq_dual_conj",
-    "dq_inverse",
-    "dq_normalize",
-    "dq_transform_point",
-    "dq_exp",
-    "dq_log",
-    "dq_pow",
-    "dq_to_screw",
-    "dq_from_screw",
-    "sclerp",
-    "seplerp",
-    "lerp",
-]
-
-
 # ----------------------------------------------------------------------------------------------
 # helpers
 
@@ -111,7 +74,7 @@ _C3 = tuple((-1) ** (k + 1) * (2 * k + 2) / _fact(2 * k + 3) for k in range(8)) 
 
 
 def _trig(phi2: Array) -> tuple[Array, Array, Array]:
-    """cos φ, sin φ / φ and (φ cos φ − sin φ)/φ³ as smooth functions of φ² ≥ 0."""
+    """Cos φ, sin φ / φ and (φ cos φ − sin φ)/φ³ as smooth functions of φ² ≥ 0."""
     thr = 0.1 if _is64(phi2) else 1.0  # below: Taylor; above: closed form (cancellation-free enough)
     small = phi2 < thr * thr
     big2 = jnp.where(small, 1.0, phi2)  # the closed forms never see φ ≈ 0, not even unselected
@@ -155,7 +118,7 @@ def quat_conj(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 4"]:
 
 
 def quat_normalize(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 4"]:
-    """q / ‖q‖; the zero quaternion maps to the identity (1, 0, 0, 0). NaN-free gradients."""
+    """Q / ‖q‖; the zero quaternion maps to the identity (1, 0, 0, 0). NaN-free gradients."""
     q = _float(q)
     n, ok = _safe_norm(q)
     ident = jnp.zeros_like(q).at[..., 0].set(1.0)
@@ -184,7 +147,8 @@ def quat_to_matrix(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 3 3"]:
 
 def quat_from_matrix(m: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 4"]:
     """Unit quaternion of a rotation matrix (Shepperd's method: the best-conditioned of four
-    formulas), with w ≥ 0."""
+    formulas), with w ≥ 0.
+    """
     m = _float(m)
     m00, m01, m02 = m[..., 0, 0], m[..., 0, 1], m[..., 0, 2]
     m10, m11, m12 = m[..., 1, 0], m[..., 1, 1], m[..., 1, 2]
@@ -209,14 +173,14 @@ def quat_from_matrix(m: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 4"]:
 
 
 def quat_exp(v: Float[ArrayLike, "... 3"]) -> Float[Array, "... 4"]:
-    """exp of the pure quaternion (0, v): (cos‖v‖, sin‖v‖ v/‖v‖); the rotation by angle 2‖v‖."""
+    """Exp of the pure quaternion (0, v): (cos‖v‖, sin‖v‖ v/‖v‖); the rotation by angle 2‖v‖."""
     v = _float(v)
     cos_, sinc, _ = _trig(jnp.sum(v * v, axis=-1))
     return jnp.concatenate([cos_[..., None], sinc[..., None] * v], axis=-1)
 
 
 def _log_factor(q: Array) -> tuple[Array, Array]:
-    """g = φ/‖v‖ with φ = atan2(‖v‖, w), so that log q = g v; returns (g, ‖v‖²)."""
+    """G = φ/‖v‖ with φ = atan2(‖v‖, w), so that log q = g v; returns (g, ‖v‖²)."""
     w, v = q[..., 0], q[..., 1:]
     s2 = jnp.sum(v * v, axis=-1)
     thr = 1e-4 if _is64(q) else 2e-2  # ≈ eps^(1/4): two series terms are exact to eps
@@ -236,13 +200,13 @@ def quat_log(q: Float[ArrayLike, "... 4"]) -> Float[Array, "... 3"]:
     return g[..., None] * q[..., 1:]
 
 
-def quat_pow(q: Float[ArrayLike, "... 4"], t: Float[ArrayLike, "..."]) -> Float[Array, "... 4"]:
+def quat_pow(q: Float[ArrayLike, "... 4"], t: Float[ArrayLike, ...]) -> Float[Array, "... 4"]:
     """q^t = exp(t log q) for unit q (no hemisphere flip: q and −q give different paths)."""
     q, t = _float(q), _float(t)
     return quat_exp(t[..., None] * quat_log(q))
 
 
-def quat_from_axis_angle(axis: Float[ArrayLike, "... 3"], angle: Float[ArrayLike, "..."]) -> Float[Array, "... 4"]:
+def quat_from_axis_angle(axis: Float[ArrayLike, "... 3"], angle: Float[ArrayLike, ...]) -> Float[Array, "... 4"]:
     """(cos θ/2, sin θ/2 · axis) for a unit axis."""
     axis, angle = _float(axis), _float(angle)
     half = 0.5 * angle[..., None]
@@ -255,16 +219,17 @@ def quat_from_rotvec(rotvec: Float[ArrayLike, "... 3"]) -> Float[Array, "... 4"]
 
 
 def _shortest(a_real: Array, b: Array) -> Array:
-    """b or −b, whichever has a non-negative real-part dot product with a_real."""
+    """B or −b, whichever has a non-negative real-part dot product with a_real."""
     dot = jnp.sum(a_real * b[..., :4], axis=-1, keepdims=True)
     return jnp.where(dot < 0, -b, b)
 
 
 def slerp(
-    t: Float[ArrayLike, "..."], q0: Float[ArrayLike, "... 4"], q1: Float[ArrayLike, "... 4"]
+    t: Float[ArrayLike, ...], q0: Float[ArrayLike, "... 4"], q1: Float[ArrayLike, "... 4"]
 ) -> Float[Array, "... 4"]:
     """Spherical linear interpolation q0 (q0* q1)^t (paper Eq. 30) along the shorter arc
-    (q1 is replaced by −q1 when q0·q1 < 0)."""
+    (q1 is replaced by −q1 when q0·q1 < 0).
+    """
     q0, q1, t = _float(q0), _float(q1), _float(t)
     q1 = _shortest(q0, q1)
     return quat_mul(q0, quat_pow(quat_mul(quat_conj(q0), q1), t))
@@ -344,7 +309,8 @@ def dq_inverse(q: Float[ArrayLike, "... 8"]) -> Float[Array, "... 8"]:
 
 def dq_normalize(q: Float[ArrayLike, "... 8"]) -> Float[Array, "... 8"]:
     """Nearest unit DQ: divide by ‖r‖ and remove the component of d along r (so r·d = 0).
-    A zero real part maps to the identity. NaN-free gradients."""
+    A zero real part maps to the identity. NaN-free gradients.
+    """
     q = _float(q)
     r, d = q[..., :4], q[..., 4:]
     n, ok = _safe_norm(r)
@@ -361,7 +327,7 @@ def dq_transform_point(q: Float[ArrayLike, "... 8"], p: Float[ArrayLike, "... 3"
 
 
 def dq_exp(omega: Float[ArrayLike, "... 3"], u: Float[ArrayLike, "... 3"]) -> Float[Array, "... 8"]:
-    """exp of the pure dual quaternion (0, ω) + ε (0, u) (paper Eq. 33 with ω + εu = (θ̂/2) v̂).
+    """Exp of the pure dual quaternion (0, ω) + ε (0, u) (paper Eq. 33 with ω + εu = (θ̂/2) v̂).
 
     With φ = ‖ω‖: real (cos φ, sinc φ · ω); dual (−(ω·u) sinc φ, sinc φ · u + c(φ) (ω·u) ω),
     c(φ) = (φ cos φ − sin φ)/φ³ — all smooth in ω, including ω = 0 (pure translation by 2u).
@@ -390,7 +356,7 @@ def dq_log(q: Float[ArrayLike, "... 8"]) -> tuple[Float[Array, "... 3"], Float[A
     return omega, u
 
 
-def dq_pow(q: Float[ArrayLike, "... 8"], t: Float[ArrayLike, "..."]) -> Float[Array, "... 8"]:
+def dq_pow(q: Float[ArrayLike, "... 8"], t: Float[ArrayLike, ...]) -> Float[Array, "... 8"]:
     """Q^t = exp(t log Q) for a unit DQ: the screw motion of Q with angle and pitch scaled by t."""
     t = _float(t)[..., None]
     omega, u = dq_log(q)
@@ -399,7 +365,7 @@ def dq_pow(q: Float[ArrayLike, "... 8"], t: Float[ArrayLike, "..."]) -> Float[Ar
 
 def dq_to_screw(
     q: Float[ArrayLike, "... 8"],
-) -> tuple[Float[Array, "..."], Float[Array, "..."], Float[Array, "... 3"], Float[Array, "... 3"]]:
+) -> tuple[Float[Array, ...], Float[Array, ...], Float[Array, "... 3"], Float[Array, "... 3"]]:
     """Screw parameters (θ, d, l, m) of a unit DQ (paper Eq. 32).
 
     θ ∈ [0, 2π]: rotation angle about the axis; d: translation along the axis; l: unit axis
@@ -423,13 +389,14 @@ def dq_to_screw(
 
 
 def dq_from_screw(
-    theta: Float[ArrayLike, "..."],
-    d: Float[ArrayLike, "..."],
+    theta: Float[ArrayLike, ...],
+    d: Float[ArrayLike, ...],
     l: Float[ArrayLike, "... 3"],
     m: Float[ArrayLike, "... 3"],
 ) -> Float[Array, "... 8"]:
     """Unit DQ of a screw motion (paper Eq. 31): real (cos θ/2, sin θ/2 l),
-    dual (−d/2 sin θ/2, sin θ/2 m + d/2 cos θ/2 l)."""
+    dual (−d/2 sin θ/2, sin θ/2 m + d/2 cos θ/2 l).
+    """
     theta, d, l, m = _float(theta), _float(d), _float(l), _float(m)
     s, c = jnp.sin(0.5 * theta)[..., None], jnp.cos(0.5 * theta)[..., None]
     hd = 0.5 * d[..., None]
@@ -440,7 +407,7 @@ def dq_from_screw(
 
 
 def sclerp(
-    t: Float[ArrayLike, "..."], a: Float[ArrayLike, "... 8"], b: Float[ArrayLike, "... 8"]
+    t: Float[ArrayLike, ...], a: Float[ArrayLike, "... 8"], b: Float[ArrayLike, "... 8"]
 ) -> Float[Array, "... 8"]:
     """Screw linear interpolation ScLERP(t; A, B) = A (A* B)^t (paper Eq. 19/34, read with A*B).
 
@@ -454,7 +421,7 @@ def sclerp(
 
 
 def lerp(
-    t: Float[ArrayLike, "..."], x0: Float[ArrayLike, "... k"], x1: Float[ArrayLike, "... k"]
+    t: Float[ArrayLike, ...], x0: Float[ArrayLike, "... k"], x1: Float[ArrayLike, "... k"]
 ) -> Float[Array, "... k"]:
     """(1 − t) x0 + t x1 (paper Eq. 29)."""
     t = _float(t)[..., None]
@@ -462,9 +429,10 @@ def lerp(
 
 
 def seplerp(
-    t: Float[ArrayLike, "..."], a: Float[ArrayLike, "... 8"], b: Float[ArrayLike, "... 8"]
+    t: Float[ArrayLike, ...], a: Float[ArrayLike, "... 8"], b: Float[ArrayLike, "... 8"]
 ) -> Float[Array, "... 8"]:
     """The "Sep(LERP)" baseline (paper App. C): SLERP of the rotations, LERP of the translations,
-    recombined into a DQ. Same end points as :func:`sclerp`, different path in between."""
+    recombined into a DQ. Same end points as :func:`sclerp`, different path in between.
+    """
     a, b = _float(a), _float(b)
     return dq_from_rt(slerp(t, a[..., :4], b[..., :4]), lerp(t, dq_translation(a), dq_translation(b)))

@@ -39,6 +39,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
+from ncflow.geometry.skeleton import Skeleton
 from ncflow.skeleton.dualquat import (
     dq_from_rt,
     dq_inverse,
@@ -51,23 +52,6 @@ from ncflow.skeleton.dualquat import (
     sclerp,
     slerp,
 )
-from ncflow.skeleton.skeleton import Skeleton
-
-__all__ = [
-    "Pose",
-    "INTERPOLATIONS",
-    "rest_pose",
-    "local_dqs",
-    "compose_tree",
-    "forward_kinematics",
-    "joint_positions",
-    "interpolate_world",
-    "interpolate_joints",
-    "bone_frames",
-    "bone_motions",
-    "move_bone_points",
-    "rigid_reference",
-]
 
 INTERPOLATIONS = ("sclerp", "slerp")
 

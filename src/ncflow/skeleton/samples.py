@@ -1,5 +1,6 @@
-"""Random samples on and around the bones of a skeleton (paper §4.3, Eq. 20–21; DESIGN.md
-"Bone samples"; reference notes §6.1).
+"""Random samples on and around the bones of a skeleton (paper §4.3, Eq. 20–21).
+
+DESIGN.md "Bone samples"; reference notes §6.1.
 
 Bone b = (a → c) at rest, length L = ‖P_c − P_a‖, unit axis e₁, radius R_b = ρ_b L. Of the n
 samples per bone, n_axis = max(2, ⌊f n⌋) (f = 0.2) lie on the axis at evenly spaced heights
@@ -18,9 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
-from ncflow.skeleton.skeleton import Skeleton
-
-__all__ = ["BoneSamples", "sample_bones", "bone_axes", "n_axis_samples", "DEFAULT_SAMPLES_PER_BONE", "DEFAULT_RADIUS"]
+from ncflow.geometry.skeleton import Skeleton
 
 DEFAULT_SAMPLES_PER_BONE = 50
 DEFAULT_RADIUS = 0.1

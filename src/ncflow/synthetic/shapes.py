@@ -10,8 +10,6 @@ from __future__ import annotations
 import numpy as np
 from jaxtyping import Float, Int
 
-__all__ = ["sphere", "tube", "capsule", "rounded_box", "bend", "SHAPES", "make_shape"]
-
 MeshArrays = tuple[Float[np.ndarray, "V 3"], Int[np.ndarray, "F 3"]]
 
 
@@ -111,7 +109,7 @@ def rounded_box(size: float = 2.0, rounding: float = 0.0, subdivisions: int = 8)
             offset += n * n
     import trimesh
 
-    from ncflow.mesh import weld_vertices
+    from ncflow.geometry.mesh import weld_vertices
 
     v, f, _ = weld_vertices(np.concatenate(verts), np.concatenate(faces), tol=1e-9)
     half = size / 2.0
@@ -131,7 +129,8 @@ def bend(
     vertices: Float[np.ndarray, "V 3"], angle_deg: float, axis: int = 2, start: float = 0.0, bend_axis: int = 0
 ) -> Float[np.ndarray, "V 3"]:
     """Bend a shape: points with coordinate ``axis`` beyond ``start`` are rotated by ``angle_deg``
-    about the line through (axis = start) parallel to coordinate ``bend_axis`` (a rigid elbow)."""
+    about the line through (axis = start) parallel to coordinate ``bend_axis`` (a rigid elbow).
+    """
     v = np.array(vertices, dtype=np.float64)
     ang = np.deg2rad(angle_deg)
     other = 3 - axis - bend_axis

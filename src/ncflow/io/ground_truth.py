@@ -34,18 +34,11 @@ from pathlib import Path
 import numpy as np
 from jaxtyping import Float, Int
 
-from ncflow.errors import InputError, first_line, read_npz_arrays
-from ncflow.evaluate.geodesics import vertex_surface_points
-from ncflow.mesh import Mesh
-
-__all__ = [
-    "GroundTruth",
-    "GT_FORMATS",
-    "load_ground_truth",
-    "save_ground_truth",
-    "ground_truth_from_vertex_map",
-    "read_index_file",
-]
+from ncflow.errors import InputError, first_line
+from ncflow.geometry.barycentric import vertex_surface_points
+from ncflow.geometry.mesh import Mesh
+from ncflow.io.atomic import atomic_path
+from ncflow.io.files import read_npz_arrays
 
 GT_FORMATS = ("identity", "vts", "index", "npz", "template")
 _SUFFIX_FORMAT = {".vts": "vts", ".txt": "index", ".npy": "index", ".npz": "npz"}
@@ -236,7 +229,8 @@ def _load_npz(path: Path, source: Mesh, target: Mesh, bary_tol: float) -> Ground
     if np.any(bad):
         k = int(np.argmax(bad))
         raise InputError(
-            f"entry {k} is source face {int(face[k])}, out of range [0, {source.n_faces - 1}] ({int(bad.sum())} entries out of range)",
+            f"entry {k} is source face {int(face[k])}, out of range [0, {source.n_faces - 1}] "
+            f"({int(bad.sum())} entries out of range)",
             path,
         )
     bary = _check_bary(bary, path, bary_tol)
@@ -257,7 +251,8 @@ def _check_bary(bary: np.ndarray, path, tol: float) -> np.ndarray:
     if np.any(off):
         k = int(np.argmax(off))
         raise InputError(
-            f"barycentric coordinates of entry {k} sum to {s[k]:.6g}, not 1 (tolerance {tol:g}; {int(off.sum())} entries)",
+            f"barycentric coordinates of entry {k} sum to {s[k]:.6g}, not 1 "
+            f"(tolerance {tol:g}; {int(off.sum())} entries)",
             path,
         )
     neg = b.min(1) < -tol
@@ -278,7 +273,8 @@ def _load_template(paths, source: Mesh, target: Mesh) -> GroundTruth:
     t, wt = _read_indices(pt)
     if s.size != t.size:
         raise InputError(
-            f"template maps differ in length: {ps} has {s.size} entries, {pt} has {t.size} (one line per template point in both)"
+            f"template maps differ in length: {ps} has {s.size} entries, {pt} has {t.size} "
+            "(one line per template point in both)"
         )
     _check_range(s, ws, ps, True, "source", source.n_vertices)
     _check_range(t, wt, pt, True, "target", target.n_vertices)
@@ -298,7 +294,8 @@ def load_ground_truth(
 
     Args:
         spec: ``"identity"``, a file path, or a pair of ``.vts`` paths (``fmt="template"``).
-        source, target: the meshes the file refers to (for sizes and faces).
+        source: the source mesh the file refers to (for sizes and faces).
+        target: the target mesh the file refers to.
         fmt: one of :data:`GT_FORMATS`; default from the suffix (``.vts`` → vts, ``.txt``/``.npy``
             → index, ``.npz`` → npz), ``"identity"`` for that string and ``"template"`` for a pair.
         bary_tol: allowed deviation of barycentric sums from 1 and of components below 0
@@ -345,11 +342,11 @@ def load_ground_truth(
 
 
 def save_ground_truth(path: str | os.PathLike, gt: GroundTruth) -> None:
-    """Write ground truth as ``.npz`` with ``face``, ``bary`` (and ``target_index`` when partial)."""
+    """Write ground truth as ``.npz`` with ``face``, ``bary`` (and ``target_index`` when partial), atomically."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     arrays = {"face": np.asarray(gt.face, dtype=np.int64), "bary": np.asarray(gt.bary, dtype=np.float64)}
     if not gt.complete:
         arrays["target_index"] = np.asarray(gt.target_index, dtype=np.int64)
-    with open(path, "wb") as fh:
-        np.savez(fh, **arrays)
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        np.savez(fh, **arrays)  # through a file object: no ".npz" is appended to other names

@@ -1,0 +1,159 @@
+"""Triangle meshes as arrays: the :class:`Mesh` type, validation, welding, face areas and enclosed volume.
+
+Meshes are plain arrays: ``vertices`` (V, 3) float64 and ``faces`` (F, 3) int64, 0-based, in the
+winding order of the file. Vertices are never reordered: :func:`weld_vertices` merges exactly
+coincident vertices keeping first occurrences in order, and a mesh read with welding keeps the map
+back to the file's vertices in :attr:`Mesh.file_index`. :func:`validate_mesh` is the check every
+reader runs (finite coordinates, indices in range, few zero-area faces, at most four faces per
+edge), raising one :class:`~ncflow.errors.InputError` line. Reading and writing files is in
+:mod:`ncflow.io.meshes`, edge tables in :mod:`ncflow.geometry.topology` and the normalising
+similarity in :mod:`ncflow.geometry.normalize`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from jaxtyping import Float, Int
+
+from ncflow.errors import InputError
+from ncflow.geometry.topology import close_boundary, mesh_topology
+
+
+@dataclasses.dataclass(frozen=True)
+class Mesh:
+    """A triangle mesh.
+
+    Attributes:
+        vertices: (V, 3) float64 coordinates.
+        faces: (F, 3) int64 vertex indices, 0-based, consistently wound.
+        name: where it came from (a file path) or a label; used in error messages.
+        file_index: (V,) index of each vertex in the file's own vertex list (identity unless
+            the reader welded duplicates).
+    """
+
+    vertices: Float[np.ndarray, "V 3"]
+    faces: Int[np.ndarray, "F 3"]
+    name: str | None = None
+    file_index: Int[np.ndarray, " V"] | None = None
+
+    @property
+    def n_vertices(self) -> int:
+        return int(self.vertices.shape[0])
+
+    @property
+    def n_faces(self) -> int:
+        return int(self.faces.shape[0])
+
+    def with_vertices(self, vertices: Float[np.ndarray, "V 3"]) -> Mesh:
+        """The same connectivity with other vertex positions."""
+        return dataclasses.replace(self, vertices=np.asarray(vertices, dtype=np.float64))
+
+
+# ----------------------------------------------------------------------------------------------
+# Reading and writing
+
+
+def weld_vertices(
+    vertices: Float[np.ndarray, "V 3"], faces: Int[np.ndarray, "F 3"], tol: float = 0.0
+) -> tuple[Float[np.ndarray, "W 3"], Int[np.ndarray, "F 3"], Int[np.ndarray, " W"]]:
+    """Merge coincident vertices.
+
+    Args:
+        vertices: (V, 3) positions.
+        faces: (F, 3) indices.
+        tol: vertices whose coordinates agree after rounding to ``tol`` are merged
+            (0 merges exact duplicates only).
+
+    Returns:
+        (welded vertices (W, 3), re-indexed faces (F, 3), for each welded vertex the index of its
+        first occurrence in the input). Vertices keep their first-occurrence order.
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    key = vertices if tol <= 0 else np.round(vertices / tol)
+    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    order = np.argsort(first)  # keep first-occurrence order
+    rank = np.empty_like(order)
+    rank[order] = np.arange(order.size)
+    new_index = rank[inverse]
+    return vertices[first[order]], new_index[np.asarray(faces)], first[order]
+
+
+# ----------------------------------------------------------------------------------------------
+# Validation
+
+
+def face_areas(vertices: Float[np.ndarray, "V 3"], faces: Int[np.ndarray, "F 3"]) -> Float[np.ndarray, " F"]:
+    """Area of every triangle."""
+    v = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)]
+    return 0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
+
+
+def _check_finite_and_range(vertices: np.ndarray, faces: np.ndarray, name: str | None) -> None:
+    if vertices.ndim != 2 or vertices.shape[1] != 3 or vertices.shape[0] == 0:
+        raise InputError(f"expected (V, 3) vertex coordinates, got shape {vertices.shape}", name)
+    bad = ~np.all(np.isfinite(vertices), axis=1)
+    if np.any(bad):
+        raise InputError(
+            f"{int(bad.sum())} vertices have NaN or infinite coordinates (first: vertex {int(np.argmax(bad))})",
+            name,
+        )
+    if faces.ndim != 2 or faces.shape[1] != 3:
+        raise InputError(f"non-triangular faces (shape {faces.shape})", name)
+    if faces.shape[0] == 0:
+        raise InputError("no faces", name)
+    if faces.min() < 0 or faces.max() >= vertices.shape[0]:
+        raise InputError(
+            f"face index out of range: indices span [{int(faces.min())}, {int(faces.max())}] "
+            f"but there are {vertices.shape[0]} vertices",
+            name,
+        )
+
+
+def validate_mesh(
+    vertices: Float[np.ndarray, "V 3"],
+    faces: Int[np.ndarray, "F 3"],
+    name: str | None = None,
+    *,
+    max_degenerate_fraction: float = 0.01,
+    area_tol: float = 1e-12,
+) -> None:
+    """Check that a mesh is usable; raise :class:`InputError` with one line otherwise.
+
+    Checks: (V, 3) finite coordinates, (F, 3) faces with indices in range, at least one face, at
+    most ``max_degenerate_fraction`` of faces with area below ``area_tol`` × (bounding-box
+    diagonal)², and no edge shared by more than 4 faces.
+    """
+    vertices = np.asarray(vertices)
+    faces = np.asarray(faces)
+    _check_finite_and_range(vertices, faces, name)
+    diag = float(np.linalg.norm(vertices.max(0) - vertices.min(0)))
+    if diag == 0.0:
+        raise InputError("all vertices coincide (zero-size mesh)", name)
+    areas = face_areas(vertices, faces)
+    degenerate = areas <= area_tol * diag**2
+    n_deg = int(degenerate.sum())
+    if n_deg > max_degenerate_fraction * faces.shape[0]:
+        raise InputError(
+            f"{n_deg} of {faces.shape[0]} faces have zero area (more than "
+            f"{100 * max_degenerate_fraction:g}% allowed; first: face {int(np.argmax(degenerate))})",
+            name,
+        )
+    mesh_topology(faces, vertices.shape[0], name=name)
+
+
+# ----------------------------------------------------------------------------------------------
+# Topology
+
+
+def enclosed_volume(vertices: Float[np.ndarray, "V 3"], faces: Int[np.ndarray, "F 3"]) -> float:
+    """Absolute volume enclosed by the surface; open surfaces are first closed by :func:`close_boundary`."""
+    v, f = close_boundary(vertices, faces)
+    tri = v[f]
+    return float(abs(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() / 6.0))
+
+
+# ----------------------------------------------------------------------------------------------
+# Normalisation

@@ -1,0 +1,140 @@
+"""Edge tables of triangle meshes, as the Normal Cycles need them, and the closing of boundary loops.
+
+:func:`mesh_topology` builds a :class:`Topology`: the unique undirected edges (a, b), a < b, their
+incident faces (up to four, so closed, open and mildly non-manifold meshes all work) with the sign
+of each face's winding along the edge, and the boundary edges and vertices (docs/architecture.md,
+"Normal Cycles"). It is built once per mesh and reused at every training step.
+:func:`close_boundary` closes every boundary loop with a fan of triangles to the loop's centroid,
+wound consistently with the surface: the enclosed volume of an open mesh (normalisation) and its
+tetrahedralisation (:mod:`ncflow.tissue`) are taken of that closed surface.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from jaxtyping import Float, Int
+
+from ncflow.errors import InputError
+
+
+@dataclasses.dataclass(frozen=True)
+class Topology:
+    """Edge tables of a triangle mesh, as the Normal Cycle representation needs them.
+
+    Attributes:
+        faces: (F, 3) the faces the tables were built from.
+        edges: (E, 2) unique undirected edges (a, b) with a < b, sorted lexicographically.
+        edge_faces: (E, 4) incident faces in increasing order, padded with -1.
+        edge_signs: (E, 4) +1 where the face runs a→b in its winding, -1 where it runs b→a,
+            0 in padded slots.
+        boundary_edges: (E,) bool, edges with exactly one incident face.
+        boundary_vertices: (Bv,) sorted vertices on boundary edges.
+        boundary_neighbors: (Bv, k) for each boundary vertex, the other ends of its boundary
+            edges, padded with -1.
+    """
+
+    faces: Int[np.ndarray, "F 3"]
+    edges: Int[np.ndarray, "E 2"]
+    edge_faces: Int[np.ndarray, "E 4"]
+    edge_signs: Int[np.ndarray, "E 4"]
+    boundary_edges: np.ndarray
+    boundary_vertices: Int[np.ndarray, " Bv"]
+    boundary_neighbors: Int[np.ndarray, "Bv k"]
+
+    @property
+    def n_edges(self) -> int:
+        return int(self.edges.shape[0])
+
+    @property
+    def has_boundary(self) -> bool:
+        return bool(self.boundary_vertices.size)
+
+
+def mesh_topology(faces: Int[np.ndarray, "F 3"], n_vertices: int | None = None, name: str | None = None) -> Topology:
+    """Build the edge tables of a triangle mesh (closed, open, or non-manifold with ≤ 4 faces per edge).
+
+    Raises:
+        InputError: an edge is shared by more than four faces.
+    """
+    faces = np.asarray(faces, dtype=np.int64)
+    nf = faces.shape[0]
+    nv = int(faces.max()) + 1 if n_vertices is None else int(n_vertices)
+    directed = np.stack([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]], axis=1).reshape(-1, 2)
+    face_of = np.repeat(np.arange(nf), 3)
+    lo = directed.min(1)
+    hi = directed.max(1)
+    keep = lo != hi  # a face with a repeated vertex has a zero-length "edge": no edge at all
+    lo, hi, face_of = lo[keep], hi[keep], face_of[keep]
+    sign = np.where(directed[keep, 0] < directed[keep, 1], 1, -1)
+    key = lo * nv + hi
+    uniq, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    inverse = inverse.reshape(-1)
+    if counts.size and counts.max() > 4:
+        worst = int(np.argmax(counts))
+        raise InputError(
+            f"non-manifold edge ({int(uniq[worst] // nv)}, {int(uniq[worst] % nv)}) is shared by "
+            f"{int(counts[worst])} faces (at most 4 supported)",
+            name,
+        )
+    edges = np.stack([uniq // nv, uniq % nv], axis=1)
+    order = np.lexsort((face_of, inverse))
+    group_start = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    slot = np.arange(order.size) - group_start[inverse[order]]
+    edge_faces = np.full((uniq.size, 4), -1, dtype=np.int64)
+    edge_signs = np.zeros((uniq.size, 4), dtype=np.int64)
+    edge_faces[inverse[order], slot] = face_of[order]
+    edge_signs[inverse[order], slot] = sign[order]
+    boundary = counts == 1
+    bedges = edges[boundary]
+    bverts = np.unique(bedges.reshape(-1))
+    if bverts.size:
+        ends = np.concatenate([bedges, bedges[:, ::-1]], axis=0)  # (v, neighbour) both ways
+        ends = ends[np.lexsort((ends[:, 1], ends[:, 0]))]
+        pos = np.searchsorted(bverts, ends[:, 0])
+        deg = np.bincount(pos, minlength=bverts.size)
+        start = np.concatenate([[0], np.cumsum(deg)[:-1]])
+        neighbors = np.full((bverts.size, int(deg.max())), -1, dtype=np.int64)
+        neighbors[pos, np.arange(ends.shape[0]) - start[pos]] = ends[:, 1]
+    else:
+        neighbors = np.zeros((0, 2), dtype=np.int64)
+    return Topology(faces, edges, edge_faces, edge_signs, boundary, bverts, neighbors)
+
+
+def close_boundary(
+    vertices: Float[np.ndarray, "V 3"], faces: Int[np.ndarray, "F 3"]
+) -> tuple[Float[np.ndarray, "W 3"], Int[np.ndarray, "G 3"]]:
+    """Close every boundary loop with a fan of triangles to the loop's centroid.
+
+    The caps are wound consistently with the adjacent faces, so a mesh that is closed except for
+    holes (e.g. a hand open at the wrist) becomes a closed, consistently oriented surface. Used for
+    the enclosed volume of open meshes and before tetrahedralisation. Vertices keep their indices;
+    one centroid vertex per loop is appended.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    topo = mesh_topology(faces, vertices.shape[0])
+    if not topo.has_boundary:
+        return vertices, faces
+    bidx = np.flatnonzero(topo.boundary_edges)
+    a, b = topo.edges[bidx, 0], topo.edges[bidx, 1]
+    s = topo.edge_signs[bidx, 0]
+    # the face runs a->b when s = +1, so the cap must run b->a
+    start = np.where(s > 0, b, a)
+    end = np.where(s > 0, a, b)
+    nv = vertices.shape[0]
+    graph = coo_matrix((np.ones(a.size), (a, b)), shape=(nv, nv))
+    _, label = connected_components(graph, directed=False)
+    loops, loop_of_edge = np.unique(label[a], return_inverse=True)
+    centroids = np.stack(
+        [
+            vertices[np.unique(np.concatenate([a[loop_of_edge == k], b[loop_of_edge == k]]))].mean(0)
+            for k in range(loops.size)
+        ]
+    )
+    cap = np.stack([start, end, nv + loop_of_edge.reshape(-1)], axis=1)
+    return np.concatenate([vertices, centroids]), np.concatenate([faces, cap])

@@ -1,0 +1,113 @@
+"""The matcher: correspondence-free matching and interpolation of two poses (paper §4, Eq. 22–27).
+
+Pipeline (DESIGN.md "Pipeline"): :func:`~ncflow.match.prepare.prepare` (validate inputs, one
+similarity normalises source, target and skeleton, topology, soft-tissue samples) →
+:func:`~ncflow.match.targets.target_measures` (Varifold / Normal Cycles per length scale,
+compressed) → :func:`~ncflow.match.train.train` (the flow net F_θ — with the ``fast`` preset a
+:class:`~ncflow.flow.SkinnedField`: blended rigid bone velocities of a trained skeleton pose plus
+the Flow-Net — the GSO rotation net and the per-bone multipliers, stage by stage, on the objective
+of :mod:`ncflow.match.objective`) → :func:`~ncflow.match.result.build_result` (flow the full
+source, interpolate frames and the skeleton, project the target for the correspondence) →
+:class:`~ncflow.match.result.MatchResult` in the user's coordinates.
+"""
+
+from __future__ import annotations
+
+import time
+
+import jax
+import numpy as np
+
+from ncflow.config import Config, preset, validate_config
+from ncflow.match.objective import Arrays
+from ncflow.match.pose_search import search_pose
+from ncflow.match.prepare import prepare
+from ncflow.match.progress import Progress
+from ncflow.match.result import MatchResult, build_result
+from ncflow.match.stages import build_stages
+from ncflow.match.targets import target_measures
+from ncflow.match.train import TrainingError, train
+
+__all__ = ["Matcher", "MatchResult", "TrainingError", "match"]
+
+
+class Matcher:
+    """Precomputes everything for one (source, target, skeleton) and runs the optimisation.
+
+    Args:
+        source, target: meshes (or paths); the target may have any triangulation and resolution.
+        skeleton: the source's skeleton (or a path: TGF, JSON, glTF).
+        config: a :class:`~ncflow.config.Config` (default: the ``fast`` preset).
+        quiet: no progress display.
+        stream: where the progress display goes (default stderr).
+    """
+
+    def __init__(self, source, target, skeleton, config: Config | None = None, *, quiet: bool = False, stream=None):
+        t0 = time.perf_counter()
+        self.config = validate_config(config or preset("fast"))
+        self.progress = Progress(self.config.total_steps, quiet, stream)
+        self.problem = prepare(source, target, skeleton, self.config, message=self.progress.message)
+        self.timings = {
+            "setup": 0.0,
+            "placement": self.problem.placement_seconds,
+            "tissue": self.problem.tissue_seconds,
+        }
+        t1 = time.perf_counter()
+        self.stages = build_stages(self.config)
+        self.targets = target_measures(self.problem, self.stages, self.config, message=self.progress.message)
+        self.timings["target"] = time.perf_counter() - t1
+        self.arrays = Arrays.from_problem(self.problem)
+        self.timings["setup"] = time.perf_counter() - t0
+
+    def run(self) -> MatchResult:
+        """Optimise, then build the result (user coordinates)."""
+        cfg = self.config
+        t_train = time.perf_counter()
+        self.progress.start = t_train
+        k_init, k_train, k_eval = jax.random.split(jax.random.key(cfg.seed), 3)
+        initial_pose, search = None, None
+        if cfg.pose_search and cfg.flow.skinning:
+            t0 = time.perf_counter()
+            self.progress.message("searching the skeleton pose that explains the target ...")
+            prob = self.problem
+            search = search_pose(
+                prob.skeleton_normalized,
+                prob.source_vertices,
+                prob.source.faces,
+                prob.target_vertices,
+                prob.target.faces,
+                skinning_width=cfg.flow.skinning_width * float(np.median(prob.skeleton_normalized.bone_lengths)),
+                seed=cfg.seed,
+            )
+            initial_pose = search.pose
+            self.timings["pose_search"] = time.perf_counter() - t0
+            t_train = time.perf_counter()
+        params, pose, lam, cw, history, done, rollbacks = train(
+            self.arrays,
+            self.targets,
+            self.stages,
+            cfg,
+            (k_init, k_train),
+            self.progress,
+            int(self.problem.centroids.shape[0]),
+            initial_pose,
+        )
+        train_seconds = time.perf_counter() - t_train
+        t_out = time.perf_counter()
+        result = build_result(
+            self.problem, self.arrays, self.targets, cfg, params, pose, lam, cw, history, k_eval, self.timings
+        )
+        timings = result.metrics["timings"]
+        timings.update(train=train_seconds, per_step=train_seconds / max(done, 1), outputs=time.perf_counter() - t_out)
+        result.metrics["rollbacks"] = rollbacks
+        result.metrics["pose_search"] = None if search is None else search.to_dict()
+        timings["total"] = sum(v for k, v in timings.items() if k in ("setup", "pose_search", "train", "outputs"))
+        return result
+
+
+def match(source, target, skeleton, config: Config | None = None, *, quiet: bool = False, stream=None) -> MatchResult:
+    """Match ``source`` to ``target`` with the source's ``skeleton`` (meshes/skeleton or file paths).
+
+    Returns a :class:`MatchResult` (call ``.save(out_dir)`` for the output contract).
+    """
+    return Matcher(source, target, skeleton, config, quiet=quiet, stream=stream).run()

@@ -1,0 +1,232 @@
+"""The training objective (paper Eqs. 22–26; DESIGN.md "Constraints (MDMM)"), a pure function.
+
+Per step one point set is flowed through the fixed-grid integrator: all source vertices, fresh
+bone samples (``sampling.bone_samples`` per bone) and a fresh tissue stencil (4 points per tissue
+sample, :func:`ncflow.tissue.sample_tissue` + :func:`ncflow.losses.tissue_stencil`). The objective is
+
+    L = d(X(1), Y)/⟨Y, Y⟩ + μ_surf L_surf + μ_soft L_soft + C(g),
+
+with the data term relative to the target's self-energy (so one set of weights works across
+meshes, scales and σ), L_surf the ARAP term against the GSO-Net on ``sampling.surface_edges``
+random edges (:func:`ncflow.losses.surface_distortion`), L_soft the tissue stencil term, and C the
+bone-constraint term. With MDMM, C = w · (c_EP · M(g^EP, λ^EP) + c_TR · τ · M(g^TR, λ^TR)) with
+M = :func:`ncflow.optim.mdmm.mdmm_term` (mean over bones) at the level margin · ε; with soft
+constraints (the ARC-Flow baseline) C = w_soft · (c_EP mean(g^EP/ε) + c_TR τ mean(g^TR/ε)).
+c_EP, c_TR are the phase's constraint weights (c_TR = 0 in phases without the trajectory term).
+
+The skeleton pose of the constraints is eliminated: at every step it is set to the least-squares
+articulated fit of the flowed bone samples (:func:`ncflow.match.pose_fit.fit_pose`, warm-started
+Gauss–Newton) weighted by the current multipliers, so it minimises the constraint term over the
+pose and g_k measures only the flow's departure from an articulated rigid motion.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, PRNGKeyArray
+
+from ncflow.flow import GSONet, integrate, time_grid
+from ncflow.geometry.topology import Topology
+from ncflow.losses import (
+    bone_constraints,
+    edge_points,
+    sample_edges,
+    surface_distortion,
+    tissue_distortion,
+    tissue_stencil,
+)
+from ncflow.match.pose_fit import constraint_fit_weights, fit_pose
+from ncflow.match.prepare import DTYPE, Problem
+from ncflow.measures.registry import get_metric
+from ncflow.optim.mdmm import mdmm_term, soft_constraint_term
+from ncflow.skeleton import Skeleton, rigid_reference, sample_bones
+from ncflow.skeleton.kinematics import Pose
+from ncflow.tissue import sample_tissue
+
+
+class Params(eqx.Module):
+    """The trained networks: the flow field (its skeleton pose included) and the GSO-Net."""
+
+    flow: eqx.Module
+    gso: GSONet
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+    """The numbers of the configuration the objective reads (static under ``jit``)."""
+
+    metric: str
+    n_bone_samples: int
+    n_tissue: int
+    n_edges: int
+    tissue_delta: float
+    n_times: int
+    interp: str
+    eps: float
+    aim: float  # margin · ε: the level MDMM holds the constraints at
+    mode: str  # "mdmm" or "soft"
+    constraint_weight: float
+    damping: float
+    trajectory_weight: float
+    soft_weight: float
+    surface_weight: float
+    tissue_weight: float
+
+    @classmethod
+    def from_config(cls, config, metric: str, n_edges_total: int, n_centroids: int) -> Settings:
+        """Settings of ``config`` for one metric; ``sampling.surface_edges`` ≤ 0 means all edges."""
+        c, s = config.constraints, config.sampling
+        return cls(
+            metric=metric,
+            n_bone_samples=s.bone_samples,
+            n_tissue=min(s.tissue_samples, n_centroids),
+            n_edges=s.surface_edges if s.surface_edges > 0 else n_edges_total,
+            tissue_delta=s.tissue_delta,
+            n_times=config.flow.n_times,
+            interp=config.interp,
+            eps=c.eps,
+            aim=c.margin * c.eps,
+            mode=c.mode,
+            constraint_weight=c.weight,
+            damping=c.damping,
+            trajectory_weight=c.trajectory_weight,
+            soft_weight=c.soft_weight,
+            surface_weight=config.weights.surface,
+            tissue_weight=config.weights.tissue,
+        )
+
+
+@dataclasses.dataclass(frozen=True)
+class Arrays:
+    """The problem's constant arrays in the training dtype (closed over by the jitted step)."""
+
+    source: Float[Array, "V 3"]
+    faces: np.ndarray
+    topology: Topology
+    edges: Array
+    centroids: Float[Array, "K 3"]
+    skeleton: Skeleton
+    radii: np.ndarray
+
+    @classmethod
+    def from_problem(cls, problem: Problem) -> Arrays:
+        """Training-dtype copies of a :class:`~ncflow.match.prepare.Problem`'s arrays."""
+        return cls(
+            source=jnp.asarray(problem.source_vertices, DTYPE),
+            faces=np.asarray(problem.source.faces),
+            topology=problem.source_topology,
+            edges=jnp.asarray(problem.source_topology.edges),
+            centroids=jnp.asarray(problem.centroids, DTYPE),
+            skeleton=problem.skeleton_normalized,
+            radii=problem.bone_radii,
+        )
+
+
+def objective(
+    params: Params,
+    pose: Pose,
+    target: Any,
+    sigma: Float[Array, ""],
+    sigma_normal: Float[Array, ""],
+    yy: Float[Array, ""],
+    phase_weights: Float[Array, 2],
+    lam: Float[Array, "2 B"],
+    key: PRNGKeyArray,
+    *,
+    arrays: Arrays,
+    settings: Settings,
+) -> tuple[Float[Array, ""], dict]:
+    """The loss L and its parts (see the module docstring).
+
+    Args:
+        params: flow field and GSO-Net.
+        pose: the pose of the previous step (warm start of the per-step pose fit).
+        target: the (compressed) target measure of this stage.
+        sigma: the kernel scale σ of this stage.
+        sigma_normal: the Varifold's normal scale σ_n (unused by Normal Cycles).
+        yy: the target's self-energy ⟨Y, Y⟩.
+        phase_weights: (2,) constraint weights (endpoint, trajectory) of the phase.
+        lam: (2, B) multipliers (endpoint, trajectory).
+        key: this step's random key (bone samples, tissue samples, surface edges).
+        arrays: the problem's constant arrays.
+        settings: the configuration's numbers.
+
+    Returns:
+        (L, aux) with aux: ``loss``, ``data``, ``surface``, ``tissue``, ``constraint``, ``g_ep`` (B,),
+        ``g_tr`` (B,), ``pose`` (the fitted pose) and ``watch`` (2,) = (data term, max_k g_k/ε).
+    """
+    s = settings
+    metric = get_metric(s.metric)
+    kb, kt, ke = jax.random.split(key, 3)
+    src, nv = arrays.source, arrays.source.shape[0]
+    times = time_grid(s.n_times, DTYPE)
+    bones = sample_bones(arrays.skeleton, kb, s.n_bone_samples, radius=arrays.radii, dtype=DTYPE).points  # (B, n, 3)
+    nb = bones.shape[0] * bones.shape[1]
+    parts = [src, bones.reshape(-1, 3)]
+    if s.n_tissue:
+        parts.append(tissue_stencil(sample_tissue(kt, arrays.centroids, s.n_tissue), s.tissue_delta))
+    xs, _ = integrate(params.flow, jnp.concatenate(parts), s.n_times)
+    surf = xs[:, :nv]
+    flowed_bones = xs[:, nv : nv + nb].reshape(s.n_times, *bones.shape)
+    data = _data_term(metric, surf[-1], arrays, target, sigma, sigma_normal, yy)
+    # surface ARAP on random edges, rotations from the GSO-Net at both ends
+    e = sample_edges(ke, arrays.edges, s.n_edges)
+    rest, local = edge_points(src, e)
+    ends = jnp.concatenate([surf[:, e[:, 0]], surf[:, e[:, 1]]], axis=1)  # (T, 2n, 3): the flowed edge points
+    surf_loss = surface_distortion(params.gso, rest, local, ends)
+    soft = tissue_distortion(xs[:, nv + nb :], s.tissue_delta) if s.n_tissue else jnp.zeros((), DTYPE)
+    fw = constraint_fit_weights(
+        s.n_times, bones.shape[0], DTYPE, lam[0] * phase_weights[0], lam[1] * phase_weights[1], s.trajectory_weight
+    )
+    pose = fit_pose(arrays.skeleton, pose, bones, jax.lax.stop_gradient(flowed_bones), times, s.interp, weights=fw)
+    pose = jax.lax.stop_gradient(pose)
+    reference = rigid_reference(arrays.skeleton, pose, bones, times, s.interp)
+    g_ep, g_tr = bone_constraints(flowed_bones, reference)
+    cons = constraint_term(g_ep, g_tr, lam, phase_weights, s)
+    total = data + s.surface_weight * surf_loss + s.tissue_weight * soft + cons
+    aux = {
+        "loss": total,
+        "data": data,
+        "surface": surf_loss,
+        "tissue": soft,
+        "constraint": cons,
+        "g_ep": g_ep,
+        "g_tr": g_tr,
+        "pose": pose,
+        "watch": jnp.stack([data, jnp.maximum(jnp.max(g_ep), jnp.max(g_tr)) / s.eps]),
+    }
+    return total, aux
+
+
+def _data_term(metric, deformed, arrays: Arrays, target, sigma, sigma_normal, yy) -> Float[Array, ""]:
+    """‖X(1) − Y‖² / ⟨Y, Y⟩ with ⟨Y, Y⟩ precomputed."""
+    x = metric.represent(deformed, arrays.topology)
+    data = metric.inner(x, x, sigma, sigma_normal) - 2.0 * metric.inner(x, target, sigma, sigma_normal) + yy
+    return data / yy
+
+
+def constraint_term(
+    g_ep: Float[Array, " B"],
+    g_tr: Float[Array, " B"],
+    lam: Float[Array, "2 B"],
+    phase_weights: Float[Array, 2],
+    settings: Settings,
+) -> Float[Array, ""]:
+    """C(g): the MDMM term at the level margin · ε (:func:`~ncflow.optim.mdmm.mdmm_term`, mean over
+    bones), or the soft penalty w_soft · mean(g/ε) (:func:`~ncflow.optim.mdmm.soft_constraint_term`),
+    for the endpoint and (weighted by τ) the trajectory constraints.
+    """
+    s = settings
+    if s.mode == "mdmm":
+        ep = mdmm_term(g_ep, lam[0], s.aim, s.damping, reduction="mean")
+        tr = mdmm_term(g_tr, lam[1], s.aim, s.damping, reduction="mean")
+        return s.constraint_weight * (phase_weights[0] * ep + phase_weights[1] * s.trajectory_weight * tr)
+    ep = soft_constraint_term(g_ep / s.eps, 1.0, reduction="mean")
+    tr = soft_constraint_term(g_tr / s.eps, 1.0, reduction="mean")
+    return s.soft_weight * (phase_weights[0] * ep + phase_weights[1] * s.trajectory_weight * tr)

@@ -1,0 +1,224 @@
+"""Articulated initialisation: search the skeleton pose that best explains the target (issue 16; beyond
+the paper, which starts every run at the rest pose).
+
+The optimisation follows the local gradient of a kernel data term whose pull vanishes for parts
+further apart than σ; a finger that must straighten by 90° or a leg that must swing forward is left
+where the first stage cannot see it. Before the flow trains, this module searches (not only
+descends) for the pose of the source skeleton whose skinned source best matches the target:
+
+* the source is summarised by area-weighted oriented Diracs (:func:`~ncflow.match.placement.surface_diracs`),
+  each carried by the skeleton-driven field's bone weights w_b (the same softmax of distances to the
+  bones as :class:`~ncflow.flow.SkinnedField`): for a pose, a Dirac moves to Σ_b w_b M_b(x) and its
+  normal to the normalised Σ_b w_b R_b n, M_b the bone's rigid motion from rest
+  (:func:`~ncflow.skeleton.kinematics.bone_motions` at t = 1, twist of one-child joints removed as the field
+  does);
+* the score of a pose is the normalised Varifold distance to the target (the data term of the first stage);
+* coarse to fine down the kinematic tree (root first, then each depth level), every joint that moves a
+  bone tries a set of local rotations — bends of ±45°, ±90°, ±135° and 180° about the two axes
+  across its bone, twists of ±90° and 180° about it, and no change — on top of each of the best
+  ``beam`` poses found so far; all hypotheses of a joint are scored in one jitted batch and the best
+  ``beam`` complete poses are kept, so a choice that only pays off once a later joint has moved
+  (left and right limbs exchanged, a finger bent back) survives until it does;
+* the surviving poses are refined by gradient descent on the same score (coarse, then finer σ) and the
+  best one initialises the field's pose (and the per-step pose fit); the rest pose is kept when
+  nothing explains the target better.
+
+The ``paper`` preset (no skeleton-driven field) does not use it: there the pose only enters the
+constraints, which are refitted at every step.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from jaxtyping import Float, Int
+from scipy.spatial.transform import Rotation
+
+from ncflow.flow.skinning import skinning_weights, swing_only
+from ncflow.match.placement import surface_diracs
+from ncflow.measures.varifold import Varifold, varifold_inner
+from ncflow.skeleton import Skeleton
+from ncflow.skeleton.dualquat import dq_rotation, dq_translation, quat_mul, quat_to_matrix
+from ncflow.skeleton.kinematics import Pose, bone_motions, rest_pose
+
+
+@dataclasses.dataclass(frozen=True)
+class PoseSearchResult:
+    """The pose found and how much it explains.
+
+    Attributes:
+        pose: the best pose (rotations (J, 4) (w, x, y, z), translation (3,)), float32.
+        score: its normalised data term d(X(pose), Y) / ⟨Y, Y⟩ at the finest σ (lower is better).
+        rest_score: the same for the rest pose.
+        hypotheses: number of poses scored.
+    """
+
+    pose: Pose
+    score: float
+    rest_score: float
+    hypotheses: int
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary (per-joint rotation angles in degrees)."""
+        q = np.asarray(self.pose.rotations, np.float64)
+        q = q / np.linalg.norm(q, axis=1, keepdims=True)
+        angles = np.degrees(2.0 * np.arccos(np.clip(np.abs(q[:, 0]), 0.0, 1.0)))
+        return {
+            "score": float(self.score),
+            "rest_score": float(self.rest_score),
+            "hypotheses": int(self.hypotheses),
+            "joint_angles_degrees": angles.round(2).tolist(),
+            "translation": np.asarray(self.pose.translation, np.float64).tolist(),
+        }
+
+
+def joint_hypotheses(skeleton: Skeleton, joint: int) -> Float[np.ndarray, "H 4"]:
+    """Local rotations (w, x, y, z) tried at ``joint``: the identity first, then bends of ±45°, ±90°,
+    ±135° and 180° about the two axes across the mean direction of its child bones and twists of
+    ±90° and 180° about it.
+    """
+    children = np.flatnonzero(np.asarray(skeleton.parents) == joint)
+    d = np.asarray(skeleton.positions)[children].mean(0) - np.asarray(skeleton.positions)[joint]
+    a = d / max(np.linalg.norm(d), 1e-12)
+    u = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(a, u)
+    rotvecs = [np.zeros(3)]
+    for axis in (u, v):
+        for deg in (45, -45, 90, -90, 135, -135, 180):
+            rotvecs.append(np.radians(deg) * axis)
+    for deg in (90, -90, 180):
+        rotvecs.append(np.radians(deg) * a)
+    q = Rotation.from_rotvec(np.asarray(rotvecs)).as_quat(scalar_first=True)
+    return q
+
+
+def _skinned(skeleton, weights, x: Varifold, pose: Pose) -> Varifold:
+    m = bone_motions(skeleton, swing_only(skeleton, pose), jnp.asarray(1.0, pose.rotations.dtype))
+    r, c = quat_to_matrix(dq_rotation(m)), dq_translation(m)  # (B, 3, 3), (B, 3)
+    centers = jnp.einsum("nb,bij,nj->ni", weights, r, x.centers) + weights @ c
+    normals = jnp.einsum("nb,bij,nj->ni", weights, r, x.normals)
+    normals = normals / jnp.maximum(jnp.linalg.norm(normals, axis=-1, keepdims=True), 1e-12)
+    return Varifold(centers, normals, x.weights)
+
+
+def search_pose(
+    skeleton: Skeleton,
+    source_vertices: Float[np.ndarray, "V 3"],
+    source_faces: Int[np.ndarray, "F 3"],
+    target_vertices: Float[np.ndarray, "W 3"],
+    target_faces: Int[np.ndarray, "G 3"],
+    *,
+    skinning_width: float,
+    interp: str = "sclerp",
+    sigma_search: float = 0.3,
+    sigmas_refine: tuple[float, ...] = (0.3, 0.15),
+    beam: int = 4,
+    refine_steps: int = 40,
+    n_search: int = 600,
+    n_refine: int = 1200,
+    seed: int = 0,
+    discrete: bool = True,
+) -> PoseSearchResult:
+    """The pose of ``skeleton`` whose skinned source best matches the target (see the module docstring).
+
+    Args:
+        skeleton: the source skeleton (normalised coordinates, as the training uses it).
+        source_vertices: (V, 3) normalised source vertices.
+        source_faces: (F, 3) source faces.
+        target_vertices: (W, 3) normalised, placed target vertices.
+        target_faces: (G, 3) target faces.
+        skinning_width: τ of the bone weights (as :class:`~ncflow.flow.SkinnedField`).
+        interp: skeleton interpolation (only t = 1 is used, where both agree).
+        sigma_search: kernel scale of the discrete search.
+        sigmas_refine: kernel scales of the gradient refinement, in turn.
+        beam: number of complete poses kept between joints.
+        refine_steps: gradient steps per refinement scale.
+        n_search: Diracs per surface in the discrete search.
+        n_refine: Diracs per surface in the refinement.
+        seed: seed of the face sampling.
+        discrete: run the discrete search (False: gradient descent from the rest pose alone, the
+            baseline the search is measured against).
+    """
+    del interp
+    dt = jnp.float32
+    bones = np.asarray(skeleton.bones)
+    pos = jnp.asarray(skeleton.positions, dt)
+
+    def problem(n, offset):
+        x = surface_diracs(source_vertices, source_faces, n, seed + offset)
+        y = surface_diracs(target_vertices, target_faces, n, seed + offset + 1)
+        w = skinning_weights(x.centers, pos[bones[:, 0]], pos[bones[:, 1]], skinning_width).astype(dt)
+        return x, y, w
+
+    coarse, fine = problem(n_search, 2), problem(n_refine, 4)
+
+    def distance(pose: Pose, sigma, data):
+        x, y, w = data
+        xs = _skinned(skeleton, w, x, pose)
+        yy = varifold_inner(y, y, sigma, 0.5)
+        return (varifold_inner(xs, xs, sigma, 0.5) - 2.0 * varifold_inner(xs, y, sigma, 0.5) + yy) / yy
+
+    rest = rest_pose(skeleton, dt)
+    # lax.map, not vmap: a batch of blocked kernel sums runs ~6× faster one after the other on CPU
+    score_fine = jax.jit(lambda poses, s: jax.lax.map(lambda p: distance(p, s, fine), poses))
+
+    @jax.jit
+    def expand(rotations, translations, hyp, j):
+        """Every beam pose × every local rotation of joint j, and their scores."""
+        nb, nh = rotations.shape[0], hyp.shape[0]
+        rot = jnp.repeat(rotations, nh, axis=0)
+        rot = rot.at[:, j].set(quat_mul(rot[:, j], jnp.tile(hyp, (nb, 1))))
+        cand = Pose(rot, jnp.repeat(translations, nh, axis=0))
+        return cand, jax.lax.map(lambda p: distance(p, sigma_search, coarse), cand)
+
+    beams = Pose(rest.rotations[None], rest.translation[None])
+    n_scored = 1
+    has_child = np.bincount(np.asarray(skeleton.parents)[1:], minlength=skeleton.n_joints) > 0
+    for level in skeleton.levels if discrete else ():
+        for j in level:
+            j = int(j)
+            if not has_child[j]:
+                continue
+            cand, s = expand(beams.rotations, beams.translation, jnp.asarray(joint_hypotheses(skeleton, j), dt), j)
+            s = np.asarray(s)
+            n_scored += s.shape[0]
+            keep = np.argsort(s, kind="stable")[:beam]
+            beams = Pose(cand.rotations[keep], cand.translation[keep])
+
+    opt = optax.adam(0.01)
+
+    def refine(pose: Pose, sigma):
+        state = opt.init(pose)
+
+        def body(carry, _):
+            p, st = carry
+            g = jax.grad(lambda q: distance(q, sigma, fine))(p)
+            u, st = opt.update(g, st, p)
+            p = optax.apply_updates(p, u)
+            return (Pose(p.rotations / jnp.linalg.norm(p.rotations, axis=-1, keepdims=True), p.translation), st), None
+
+        return jax.lax.scan(body, (pose, state), None, length=refine_steps)[0][0]
+
+    refine_all = jax.jit(lambda poses, s: jax.lax.map(lambda p: refine(p, s), poses))
+    candidates = Pose(
+        jnp.concatenate([beams.rotations, rest.rotations[None]]),
+        jnp.concatenate([beams.translation, rest.translation[None]]),
+    )
+    for sigma in sigmas_refine:
+        candidates = refine_all(candidates, float(sigma))
+    final = np.asarray(score_fine(candidates, float(sigmas_refine[-1])))
+    rest_score = float(
+        np.asarray(score_fine(Pose(rest.rotations[None], rest.translation[None]), float(sigmas_refine[-1])))[0]
+    )
+    best = int(np.argmin(final))
+    if final[best] >= rest_score:
+        return PoseSearchResult(rest, rest_score, rest_score, n_scored)
+    # the score cannot see the twist of one-child joints (the field moves by the swing alone): drop it
+    pose = swing_only(skeleton, Pose(candidates.rotations[best], candidates.translation[best]))
+    rot = pose.rotations / jnp.linalg.norm(pose.rotations, axis=-1, keepdims=True)
+    return PoseSearchResult(Pose(rot, pose.translation), float(final[best]), rest_score, n_scored)

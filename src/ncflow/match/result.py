@@ -1,0 +1,245 @@
+"""The result of a match: the outputs in the user's coordinates (DESIGN.md "Output contract").
+
+After training, the full source is flowed by the trained field (frames on a uniform time grid),
+the output pose is refitted on fresh bone samples with the final multiplier weights, the skeleton
+is interpolated per frame, the target is projected onto the flowed source for the correspondence,
+and everything is mapped back through the normalisation. :class:`MatchResult` holds it all and
+writes the output contract (:meth:`MatchResult.save`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import platform
+from pathlib import Path
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ncflow import __version__
+from ncflow.config import config_to_dict
+from ncflow.flow import flow_points, time_grid
+from ncflow.geometry.mesh import Mesh
+from ncflow.geometry.normalize import Normalization
+from ncflow.losses import bone_constraints
+from ncflow.match.correspondence import correspondence_maps
+from ncflow.match.placement import Placement
+from ncflow.match.pose_fit import constraint_fit_weights, fit_pose
+from ncflow.match.prepare import DTYPE
+from ncflow.match.train import TrainingError
+from ncflow.skeleton import Skeleton, interpolate_joints, rigid_reference, sample_bones
+from ncflow.skeleton.kinematics import Pose
+
+
+@dataclasses.dataclass
+class MatchResult:
+    """Everything a match produced, in the user's coordinates.
+
+    Attributes:
+        source, target: the input meshes.
+        skeleton: the source skeleton; ``skeleton_target`` the fitted target pose of it.
+        deformed_source: (V, 3) source vertices flowed to t = 1.
+        frame_times: (K,) times in [0, 1]; ``frames`` (K, V, 3) the interpolation.
+        skeleton_frames: (K, J, 3) joint positions per frame.
+        maps: correspondence (:func:`ncflow.match.correspondence.correspondence_maps`).
+        metrics: losses, per-bone constraints, timings, config, versions, seed.
+        normalization: the similarity used for training.
+        placement: the rigid motion that placed the target on the source for training (normalised
+            coordinates); outputs are moved back along it, so they end on the target as given.
+    """
+
+    source: Mesh
+    target: Mesh
+    skeleton: Skeleton
+    skeleton_target: Skeleton
+    deformed_source: np.ndarray
+    frame_times: np.ndarray
+    frames: np.ndarray
+    skeleton_frames: np.ndarray
+    maps: dict
+    metrics: dict
+    normalization: Normalization
+    field: Any = dataclasses.field(repr=False, default=None)
+    n_times: int = 10
+    placement: Placement | None = None
+    pivot: np.ndarray | None = None
+
+    def flow(self, points: np.ndarray, times: np.ndarray | None = None) -> np.ndarray:
+        """Move any points (user coordinates, e.g. a higher-resolution source) by the trained field.
+
+        Returns (N, 3) at t = 1, or (Q, N, 3) at the given times (the target's placement included,
+        as in :attr:`frames`).
+        """
+        p = jnp.asarray(self.normalization.apply(np.asarray(points, np.float64)), DTYPE)
+        if times is None:
+            out = np.asarray(flow_points(self.field, p, self.n_times)[-1], np.float64)
+            out = self._placed_back(out[None], np.ones(1))[0]
+        else:
+            out = np.asarray(flow_points(self.field, p, self.n_times, times=jnp.asarray(times, DTYPE)), np.float64)
+            out = self._placed_back(out, np.asarray(times, np.float64))
+        return self.normalization.invert(out)
+
+    def _placed_back(self, states: np.ndarray, times: np.ndarray) -> np.ndarray:
+        return move_back(self.placement, states, times, self.pivot)
+
+    def save(self, out_dir: str | os.PathLike, overwrite: bool = False) -> Path:
+        """Write the output contract of DESIGN.md into ``out_dir`` (atomically)."""
+        from ncflow.io.result import write_result
+
+        return write_result(
+            out_dir,
+            deformed_source=self.deformed_source,
+            source_faces=self.source.faces,
+            maps=self.maps,
+            frames=self.frames,
+            frame_times=self.frame_times,
+            skeleton_target=self.skeleton_target,
+            skeleton_frames=self.skeleton_frames,
+            parents=self.skeleton.parents,
+            joint_names=list(self.skeleton.names) if self.skeleton.names else None,
+            metrics=self.metrics,
+            overwrite=overwrite,
+        )
+
+
+FINAL_BONE_SAMPLES = 200  # per bone, for the reported g_k (fresh samples, so an estimate of the integral)
+
+
+def final_pose(arrays, config, params, pose: Pose, lam, cw, key) -> tuple[Pose, np.ndarray, np.ndarray]:
+    """The output pose and its (g^EP, g^TR): the training pose refined on FINAL_BONE_SAMPLES fresh
+    samples per bone with the final multiplier weights (the per-step fit sees only a few samples).
+    """
+    c = config.constraints
+    n_times = config.flow.n_times
+    bones = sample_bones(arrays.skeleton, key, FINAL_BONE_SAMPLES, radius=arrays.radii, dtype=DTYPE).points
+    xs = flow_points(params.flow, bones.reshape(-1, 3), n_times).reshape(n_times, *bones.shape)
+    times = time_grid(n_times, DTYPE)
+    fw = constraint_fit_weights(n_times, bones.shape[0], DTYPE, lam[0] * cw[0], lam[1] * cw[1], c.trajectory_weight)
+    pose = fit_pose(arrays.skeleton, pose, bones, xs, times, config.interp, iterations=3, weights=fw)
+    ref = rigid_reference(arrays.skeleton, pose, bones, times, config.interp)
+    g_ep, g_tr = bone_constraints(xs, ref)
+    return pose, np.asarray(g_ep, np.float64), np.asarray(g_tr, np.float64)
+
+
+def _versions() -> dict:
+    import scipy
+    import trimesh
+
+    return {
+        "python": platform.python_version(),
+        "jax": jax.__version__,
+        "numpy": np.__version__,
+        "scipy": scipy.__version__,
+        "trimesh": trimesh.__version__,
+        "equinox": eqx.__version__,
+        "platform": platform.platform(),
+        "device": str(jax.devices()[0]),
+    }
+
+
+def build_result(problem, arrays, targets, config, params, pose: Pose, lam, cw, history, key, timings) -> MatchResult:
+    """Flow the full source, refit the pose, interpolate the skeleton, project the target; metrics.
+
+    Raises:
+        TrainingError: the trained flow produced non-finite positions.
+    """
+    cfg = config
+    norm = problem.normalization
+    source, target, skeleton = problem.source, problem.target, problem.skeleton
+    src_v = problem.source_vertices
+    frame_times = np.linspace(0.0, 1.0, cfg.frames)
+    src = jnp.asarray(src_v, DTYPE)
+    frames_n = np.asarray(
+        flow_points(params.flow, src, cfg.flow.n_times, times=jnp.asarray(frame_times, DTYPE)), np.float64
+    )
+    frames_n[0] = src_v  # t = 0 is the source exactly
+    deformed_n = frames_n[-1]  # Hermite output at a grid time is the grid state: the state at t = 1
+    if not (np.all(np.isfinite(frames_n)) and np.all(np.isfinite(deformed_n))):
+        raise TrainingError("the trained flow produced non-finite positions")
+    pose, g_ep, g_tr = final_pose(arrays, cfg, params, pose, lam, cw, key)
+    joints = np.stack(
+        [np.asarray(interpolate_joints(arrays.skeleton, pose, float(t), cfg.interp), np.float64) for t in frame_times]
+    )
+    maps = correspondence_maps(src_v, source.faces, deformed_n, problem.target_vertices, target.faces)
+    pivot = src_v.mean(axis=0)
+    frames_n = move_back(problem.placement, frames_n, frame_times, pivot)
+    joints = move_back(problem.placement, joints, frame_times, pivot)
+    deformed_n = frames_n[-1]
+    eps = cfg.constraints.eps
+    names = skeleton.names or tuple(f"joint {j}" for j in range(skeleton.n_joints))
+    bones = [
+        {
+            "bone": f"{names[skeleton.parents[j]]} -> {names[j]}",
+            "g_endpoint": float(g_ep[j - 1]),
+            "g_trajectory": float(g_tr[j - 1]),
+            "rms_distance_endpoint": float(np.sqrt(g_ep[j - 1]) / norm.scale),
+            "satisfied": bool(g_ep[j - 1] <= eps and g_tr[j - 1] <= eps),
+            "multiplier_endpoint": float(lam[0, j - 1]),
+            "multiplier_trajectory": float(lam[1, j - 1]),
+        }
+        for j in range(1, skeleton.n_joints)
+    ]
+    metrics = {
+        "ncflow_version": __version__,
+        "seed": cfg.seed,
+        "source": source.name,
+        "target": target.name,
+        "skeleton": skeleton.name,
+        "n_source_vertices": source.n_vertices,
+        "n_target_vertices": target.n_vertices,
+        "n_bones": skeleton.n_bones,
+        "phases": history,
+        "constraints": {
+            "mode": cfg.constraints.mode,
+            "eps": eps,
+            "units": "g = mean squared distance in normalised units (source volume 4*pi/3); rms_distance in user units",
+            "max_g_endpoint": float(g_ep.max()),
+            "max_g_trajectory": float(g_tr.max()),
+            "max_violation_ratio": float(max(g_ep.max(), g_tr.max()) / eps),
+            "all_satisfied": bool(np.all(g_ep <= eps) and np.all(g_tr <= eps)),
+            "bones": bones,
+        },
+        "correspondence": {
+            "mean_distance_target_to_flowed_source": float(np.mean(maps["dist_tgt_to_src"]) / norm.scale),
+            "mean_distance_flowed_source_to_target": float(np.mean(maps["dist_src_to_tgt"]) / norm.scale),
+        },
+        "compression": {f"{k[0]} sigma={k[1]:g}": v[2] for k, v in targets.items()},
+        "tissue": problem.tissue_info,
+        "normalization": norm.to_dict(),
+        "placement": problem.placement.to_dict(norm.scale),
+        "warnings": list(problem.warnings),
+        "timings": dict(timings),
+        "config": config_to_dict(cfg),
+        "versions": _versions(),
+    }
+    return MatchResult(
+        source=source,
+        target=target,
+        skeleton=skeleton,
+        skeleton_target=skeleton.with_positions(norm.invert(joints[-1])),
+        deformed_source=norm.invert(deformed_n),
+        frame_times=frame_times,
+        frames=norm.invert(frames_n),
+        skeleton_frames=norm.invert(joints),
+        maps=maps,
+        metrics=metrics,
+        normalization=norm,
+        field=params.flow,
+        n_times=cfg.flow.n_times,
+        placement=problem.placement,
+        pivot=pivot,
+    )
+
+
+def move_back(placement: Placement | None, states: np.ndarray, times: np.ndarray, pivot: np.ndarray) -> np.ndarray:
+    """States (K, N, 3) at ``times`` (K,), trained against the placed target, moved along the rigid
+    motion from the identity (t = 0) to the placement's inverse (t = 1); untouched when the target
+    was not moved.
+    """
+    if placement is None or not placement.moved:
+        return states
+    return np.stack([placement.back_along(s, float(t), pivot) for s, t in zip(states, times)])

@@ -1,0 +1,49 @@
+"""Target measures per length scale: the target's Varifold / Normal Cycle, compressed once per
+(metric, σ, σ_n) when larger than ``config.compress`` (Algorithm 2; DESIGN.md "Compression"), with
+its self-energy ⟨Y, Y⟩ that normalises the data term.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+
+from ncflow.errors import InputError
+from ncflow.match.prepare import DTYPE, Problem
+from ncflow.match.stages import Stage
+from ncflow.measures.registry import get_metric
+
+TargetKey = tuple[str, float, float]  # (metric, sigma, sigma_normal)
+
+
+def target_measures(
+    problem: Problem, stages: list[Stage], config, message=lambda text: None
+) -> dict[TargetKey, tuple[Any, float, dict]]:
+    """For every distinct (metric, σ, σ_n) of the stages: (target measure, ⟨Y, Y⟩, compression report).
+
+    Raises:
+        InputError: the target has no measurable surface (a non-finite or zero self-energy).
+    """
+    targets: dict[TargetKey, tuple[Any, float, dict]] = {}
+    ty = jnp.asarray(problem.target_vertices, DTYPE)
+    full = {}
+    for st in stages:
+        key = (st.metric, st.sigma, st.phase_config.sigma_normal)
+        if key in targets:
+            continue
+        metric = get_metric(st.metric)
+        if st.metric not in full:
+            full[st.metric] = metric.represent(ty, problem.target_topology)
+        y = full[st.metric]
+        report = {"n": int(y.size), "m": int(y.size), "relative_error": 0.0, "seconds": 0.0}
+        if config.compress and y.size > config.compress:
+            message(f"compressing the target ({st.metric}, sigma={st.sigma:g}) to {config.compress} points ...")
+            y, rep = metric.compress(y, config.compress, st.sigma, st.phase_config.sigma_normal, config.seed)
+            report = rep.to_dict()
+        yy = float(metric.inner(y, y, st.sigma, st.phase_config.sigma_normal))
+        if not np.isfinite(yy) or yy <= 0:
+            raise InputError("the target has no measurable surface (zero self-energy)", problem.target.name)
+        targets[key] = (y, yy, report)
+    return targets

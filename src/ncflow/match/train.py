@@ -1,0 +1,200 @@
+"""Training: the optimiser, the jitted step and the loop over stages (paper §4.6; DESIGN.md "Optimiser").
+
+The optimiser is the configured Adam-family transform (cautious AdaBelief or VectorAdam) behind one
+global-norm clip, with the learning rate injected per step (:func:`optax.inject_hyperparams`; the
+schedule and the divergence guard's scale are applied to it) and the skeleton pose's learning rate
+scaled by ``flow.pose_lr_scale`` through :func:`optax.multi_transform`. Multipliers follow the
+ramped sign ascent of :func:`ncflow.optim.mdmm.ascend_multipliers`. A
+:class:`~ncflow.match.guard.DivergenceGuard` rolls a stage back to its last healthy snapshot, at
+half the learning rate, when the data term or the largest bone violation runs away.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from ncflow.errors import NcflowError
+from ncflow.flow import GSONet, SkinnedField, make_flow_field
+from ncflow.match.guard import DivergenceGuard
+from ncflow.match.objective import Arrays, Params, Settings, objective
+from ncflow.match.prepare import DTYPE
+from ncflow.match.progress import Progress
+from ncflow.match.stages import Stage, phase_schedule
+from ncflow.optim import adabelief_cautious, vectoradam_cautious
+from ncflow.optim.mdmm import ascend_multipliers, multiplier_rate
+from ncflow.skeleton import Skeleton
+from ncflow.skeleton.kinematics import Pose, rest_pose
+
+
+class TrainingError(NcflowError):
+    """The optimisation failed (a non-finite loss); nothing is written."""
+
+
+def init_params(key, config, skeleton: Skeleton, pose: Pose | None = None) -> Params:
+    """Flow field (skeleton-driven when ``flow.skinning``, starting at ``pose``, default the rest pose)
+    and GSO-Net, initialised from ``key``.
+    """
+    kf, kg = jax.random.split(key)
+    f = config.flow
+    field = make_flow_field(kf, width=f.width, depth=f.depth, div_free=f.div_free, dtype=DTYPE)
+    if f.skinning:
+        width = f.skinning_width * float(np.median(skeleton.bone_lengths))
+        field = SkinnedField(field, skeleton, pose=pose, width=width, interp=config.interp, dtype=DTYPE)
+    return Params(field, GSONet(kg, width=f.gso_width, depth=f.gso_depth, dtype=DTYPE))
+
+
+def parameter_labels(params: Params):
+    """``"pose"`` on the leaves of a skeleton-driven field's pose, ``"net"`` on every other leaf."""
+    labels = jax.tree_util.tree_map(lambda _: "net", params)
+    if isinstance(params.flow, SkinnedField):
+        labels = eqx.tree_at(
+            lambda p: p.flow.pose, labels, replace_fn=lambda sub: jax.tree_util.tree_map(lambda _: "pose", sub)
+        )
+    return labels
+
+
+def build_optimizer(config) -> optax.GradientTransformation:
+    """Global-norm clip → per group (network / pose) the configured optimiser at the injected learning
+    rate, the pose group's updates scaled by ``flow.pose_lr_scale``.
+    """
+    make = adabelief_cautious if config.optimizer == "adabelief" else vectoradam_cautious
+
+    def factory(learning_rate):
+        def group():
+            return make(learning_rate, weight_decay=config.weight_decay, clip_norm=None)
+
+        clip = optax.clip_by_global_norm(config.clip_norm) if config.clip_norm is not None else optax.identity()
+        groups = {"net": group(), "pose": optax.chain(group(), optax.scale(config.flow.pose_lr_scale))}
+        return optax.chain(clip, optax.multi_transform(groups, parameter_labels))
+
+    return optax.inject_hyperparams(factory, hyperparam_dtype=DTYPE)(learning_rate=1.0)
+
+
+def make_step(arrays: Arrays, settings: Settings, optimizer: optax.GradientTransformation, multiplier_lr: float):
+    """The jitted training step for one metric.
+
+    ``step(params, pose, opt_state, lam, target, sigma, sigma_n, yy, cw, lr, progress, key)`` →
+    ``(params, pose, opt_state, lam, aux)``: value and gradient of :func:`~ncflow.match.objective.objective`,
+    one optimiser update at learning rate ``lr``, and (MDMM) one multiplier ascent at the rate
+    ramped by ``progress`` (step / total steps).
+    """
+    loss = functools.partial(objective, arrays=arrays, settings=settings)
+
+    @eqx.filter_jit
+    def step(params, pose, opt_state, lam, target, sigma, sigma_n, yy, cw, lr, progress, key):
+        (_, aux), grads = eqx.filter_value_and_grad(loss, has_aux=True)(
+            params, pose, target, sigma, sigma_n, yy, cw, lam, key
+        )
+        opt_state = opt_state._replace(hyperparams={**opt_state.hyperparams, "learning_rate": lr})
+        updates, opt_state = optimizer.update(grads, opt_state, eqx.filter(params, eqx.is_inexact_array))
+        params = eqx.apply_updates(params, updates)
+        if settings.mode == "mdmm":
+            g = jnp.stack([aux["g_ep"], aux["g_tr"]])
+            active = (cw > 0).astype(lam.dtype)[:, None]
+            lam = ascend_multipliers(lam, g, settings.aim, multiplier_rate(multiplier_lr, progress), active)
+        return params, aux.pop("pose"), opt_state, lam, aux
+
+    return step
+
+
+def train(
+    arrays: Arrays,
+    targets: dict,
+    stages: list[Stage],
+    config,
+    key,
+    progress: Progress,
+    n_centroids: int,
+    initial_pose: Pose | None = None,
+):
+    """Run every stage; returns ``(params, pose, lam, phase_weights, history, steps_done, rollbacks)``.
+
+    ``initial_pose`` (from :mod:`ncflow.match.pose_search`) starts the skeleton-driven field and the
+    per-step pose fit; default the rest pose.
+
+    Raises:
+        TrainingError: a non-finite loss or non-finite trained parameters.
+    """
+    cfg = config
+    k_init, k_train = key
+    params = init_params(k_init, cfg, arrays.skeleton, initial_pose)
+    pose = rest_pose(arrays.skeleton, DTYPE) if initial_pose is None else initial_pose
+    optimizer = build_optimizer(cfg)
+    opt_state = optimizer.init(eqx.filter(params, eqx.is_inexact_array))
+    lam = jnp.zeros((2, arrays.skeleton.n_bones), DTYPE)
+    steps_fn = {}
+    history = []
+    done = 0
+    aux = None
+    cw = None
+    guard = DivergenceGuard(cfg.divergence_guard)
+    for st in stages:
+        if st.metric not in steps_fn:
+            settings = Settings.from_config(cfg, st.metric, int(arrays.edges.shape[0]), n_centroids)
+            steps_fn[st.metric] = make_step(arrays, settings, optimizer, cfg.constraints.multiplier_lr)
+        step = steps_fn[st.metric]
+        target, yy, _ = targets[(st.metric, st.sigma, st.phase_config.sigma_normal)]
+        schedule = phase_schedule(st.phase_config)
+        pw = st.phase_config.constraint_weight
+        cw = jnp.asarray([pw, pw if st.phase_config.trajectory else 0.0], DTYPE)
+        phase_name = st.phase_config.name or st.metric
+        guard.start_stage((params, pose, opt_state, lam), watch_violation=done > 0)
+        for s in range(st.steps):
+            lr = jnp.asarray(schedule(st.start + s) * guard.lr_scale, DTYPE)
+            params, pose, opt_state, lam, aux = step(
+                params,
+                pose,
+                opt_state,
+                lam,
+                target,
+                jnp.asarray(st.sigma, DTYPE),
+                jnp.asarray(st.phase_config.sigma_normal, DTYPE),
+                jnp.asarray(yy, DTYPE),
+                cw,
+                lr,
+                jnp.asarray(done / cfg.total_steps, DTYPE),
+                jax.random.fold_in(k_train, done),
+            )
+            done += 1
+            watch = np.asarray(aux["watch"], np.float64)  # one transfer: data term, largest g/ε
+            verdict = guard.observe(float(watch[0]), (params, pose, opt_state, lam), done, float(watch[1]))
+            if verdict != "ok":
+                params, pose, opt_state, lam = guard.snapshot
+                ev = guard.events[-1]
+                progress.message(
+                    f"[{phase_name} σ={st.sigma:g}] step {done}: the run went astray (data {ev['data_smoothed']:.3g}, "
+                    f"best {ev['data_best']:.3g}; bone g/eps {ev['violation_smoothed']:.3g}, "
+                    f"best {ev['violation_best']:.3g}); "
+                    + ("rolled back, learning rate halved" if verdict == "rollback" else "rolled back, stage ended")
+                )
+                if verdict == "stop":
+                    break
+            if progress.wants_update(done, last=s == st.steps - 1):
+                loss = float(aux["loss"])
+                if not np.isfinite(loss):
+                    progress.close()
+                    raise TrainingError(
+                        f"training diverged at step {done} ({phase_name}, sigma={st.sigma:g}): non-finite loss; "
+                        "try a smaller learning rate (e.g. phases.lr) or check the inputs"
+                    )
+                progress.update(done, f"{phase_name} σ={st.sigma:g}", loss, float(watch[1]))
+        history.append(
+            {
+                "phase": phase_name,
+                "metric": st.metric,
+                "sigma": st.sigma,
+                "steps": st.steps,
+                **{k: float(aux[k]) for k in ("loss", "data", "surface", "tissue", "constraint")},
+            }
+        )
+    progress.close()
+    leaves = jax.tree_util.tree_leaves(eqx.filter(params, eqx.is_inexact_array))
+    if not all(bool(jnp.all(jnp.isfinite(leaf))) for leaf in leaves):
+        raise TrainingError("training produced non-finite parameters")
+    return params, pose, lam, cw, history, done, guard.events

@@ -1,0 +1,58 @@
+"""One table from metric name to (represent, inner product, compress): the only Varifold / Normal Cycles dispatch.
+
+Used by the matcher's data term and target preparation, ``ncflow distance`` and the ablations.
+
+Every entry takes the same arguments: ``represent(vertices, topology)`` builds the measure of a
+mesh (the :class:`~ncflow.geometry.topology.Topology` carries the faces the Varifold needs and the
+edge tables the Normal Cycle needs); ``inner(x, y, sigma, sigma_normal)`` is the kernel inner
+product (the Normal Cycle kernel has no normal scale and ignores ``sigma_normal``);
+``compress(y, m, sigma, sigma_normal, seed)`` is the Nyström compression of Algorithm 2;
+``distance(x, y, sigma, sigma_normal)`` = ⟨X, X⟩ + ⟨Y, Y⟩ − 2⟨X, Y⟩.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any
+
+from ncflow.measures.compression import CompressionReport, compress_normal_cycle, compress_varifold
+from ncflow.measures.normal_cycles import normal_cycle, normal_cycle_distance, normal_cycle_inner
+from ncflow.measures.varifold import varifold, varifold_distance, varifold_inner
+
+
+@dataclasses.dataclass(frozen=True)
+class Metric:
+    """The three operations of one shape metric (see the module docstring for their arguments)."""
+
+    name: str
+    represent: Callable[..., Any]
+    inner: Callable[..., Any]
+    compress: Callable[..., tuple[Any, CompressionReport]]
+    distance: Callable[..., Any]
+
+
+METRICS: dict[str, Metric] = {
+    "varifold": Metric(
+        name="varifold",
+        represent=lambda vertices, topology: varifold(vertices, topology.faces),
+        inner=lambda x, y, sigma, sigma_normal: varifold_inner(x, y, sigma, sigma_normal),
+        compress=lambda y, m, sigma, sigma_normal, seed: compress_varifold(y, m, sigma, sigma_normal, seed=seed),
+        distance=lambda x, y, sigma, sigma_normal: varifold_distance(x, y, sigma, sigma_normal),
+    ),
+    "normal-cycles": Metric(
+        name="normal-cycles",
+        represent=lambda vertices, topology: normal_cycle(vertices, topology),
+        inner=lambda x, y, sigma, sigma_normal: normal_cycle_inner(x, y, sigma),
+        compress=lambda y, m, sigma, sigma_normal, seed: compress_normal_cycle(y, m, sigma, seed=seed),
+        distance=lambda x, y, sigma, sigma_normal: normal_cycle_distance(x, y, sigma),
+    ),
+}
+
+
+def get_metric(name: str) -> Metric:
+    """The :class:`Metric` called ``name`` (``"varifold"`` or ``"normal-cycles"``)."""
+    try:
+        return METRICS[name]
+    except KeyError:
+        raise ValueError(f"unknown metric {name!r}; use one of {', '.join(METRICS)}") from None

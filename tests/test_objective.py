@@ -1,0 +1,167 @@
+"""The objective and the training step that the matcher runs (ncflow.match.objective / train).
+
+The step must be exactly: objective (losses + tissue + optim.mdmm) → the configured optimiser with the pose's
+learning rate scaled through optax.multi_transform → the sign ascent of optim.mdmm on the multipliers.
+"""
+
+import dataclasses
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from ncflow.config import apply_overrides, preset, validate_config
+from ncflow.geometry.mesh import Mesh
+from ncflow.match.objective import Arrays, Settings, constraint_term, objective
+from ncflow.match.prepare import DTYPE, prepare
+from ncflow.match.stages import build_stages
+from ncflow.match.targets import target_measures
+from ncflow.match.train import build_optimizer, init_params, make_step, parameter_labels
+from ncflow.optim.mdmm import ascend_multipliers, multiplier_rate
+from ncflow.skeleton import Skeleton
+from ncflow.skeleton.kinematics import rest_pose
+from ncflow.synthetic.shapes import bend, capsule
+
+
+def _config(**overrides):
+    items = [
+        "flow.width=16",
+        "flow.depth=2",
+        "flow.gso_width=8",
+        "flow.gso_depth=1",
+        "sampling.bone_samples=6",
+        "sampling.tissue_samples=0",
+        "weights.tissue=0",
+        "sampling.surface_edges=64",
+        "compress=none",
+    ] + [f"{k}={v}" for k, v in overrides.items()]
+    return validate_config(apply_overrides(preset("fast"), items))
+
+
+@pytest.fixture(scope="module")
+def problem():
+    vs, fs = capsule(radius=0.4, length=3.0, n_around=8, n_along=10)
+    vt, ft = capsule(radius=0.4, length=3.0, n_around=9, n_along=9, diagonal="left")
+    skel = Skeleton.from_arrays(np.array([[0, 0, -1.6], [0, 0, 0.0], [0, 0, 1.6]]), np.array([-1, 0, 1]))
+    cfg = _config()
+    prob = prepare(Mesh(vs, fs, "s"), Mesh(bend(vt, 50.0), ft, "t"), skel, cfg)
+    stages = build_stages(cfg)
+    return cfg, prob, stages, target_measures(prob, stages, cfg)
+
+
+def test_constraint_term_matches_brute_force():
+    g_ep = jnp.asarray([0.5e-3, 2e-3, 0.1e-3])
+    g_tr = jnp.asarray([3e-3, 0.0, 1e-3])
+    lam = jnp.asarray([[1.0, 2.0, 3.0], [0.5, 0.0, 4.0]])
+    pw = jnp.asarray([1.0, 0.7])
+    cfg = _config(**{"constraints.eps": 1e-3, "constraints.margin": 0.5, "constraints.damping": 10.0})
+    s = Settings.from_config(cfg, "varifold", 100, 0)
+    aim, tau, w = 0.5e-3, cfg.constraints.trajectory_weight, cfg.constraints.weight
+
+    def m(g, lam_):
+        gam = np.maximum(np.asarray(g) - aim, 0.0)
+        return np.mean(np.asarray(lam_) * gam + 0.5 * 10.0 * gam**2)
+
+    expected = w * (1.0 * m(g_ep, lam[0]) + 0.7 * tau * m(g_tr, lam[1]))
+    assert float(constraint_term(g_ep, g_tr, lam, pw, s)) == pytest.approx(expected, rel=1e-12)
+    soft = dataclasses.replace(s, mode="soft")
+    expected_soft = cfg.constraints.soft_weight * (
+        np.mean(np.asarray(g_ep)) / 1e-3 + 0.7 * tau * np.mean(np.asarray(g_tr)) / 1e-3
+    )
+    assert float(constraint_term(g_ep, g_tr, lam, pw, soft)) == pytest.approx(expected_soft, rel=1e-12)
+
+
+def _first_stage(problem):
+    """(config, arrays, first stage, its target and ⟨Y, Y⟩, objective settings, initial parameters)."""
+    cfg, prob, stages, targets = problem
+    arrays = Arrays.from_problem(prob)
+    st = stages[0]
+    target, yy, _ = targets[(st.metric, st.sigma, st.phase_config.sigma_normal)]
+    s = Settings.from_config(cfg, st.metric, int(arrays.edges.shape[0]), 0)
+    return cfg, arrays, st, target, yy, s, init_params(jax.random.key(0), cfg, arrays.skeleton)
+
+
+def test_objective_at_identity_flow_is_the_data_term_plus_nothing(problem):
+    """At the first step the flow is ~identity: bones are rigid (g ≈ 0), so no constraint cost."""
+    cfg, arrays, st, target, yy, s, params = _first_stage(problem)
+    zero_flow = eqx.tree_at(lambda p: p.flow.residual.alpha, params, jnp.zeros_like(params.flow.residual.alpha))
+    lam = jnp.zeros((2, 2), DTYPE)
+    total, aux = objective(
+        zero_flow,
+        rest_pose(arrays.skeleton, DTYPE),
+        target,
+        jnp.asarray(st.sigma, DTYPE),
+        jnp.asarray(0.5, DTYPE),
+        jnp.asarray(yy, DTYPE),
+        jnp.asarray([1.0, 1.0], DTYPE),
+        lam,
+        jax.random.key(1),
+        arrays=arrays,
+        settings=s,
+    )
+    # with the residual off and the pose at rest the flow is the identity: the data term is the
+    # normalised Varifold distance of the rest source to the target, every bone exactly rigid
+    from ncflow.measures.registry import get_metric
+
+    metric = get_metric(st.metric)
+    x = metric.represent(arrays.source, arrays.topology)
+    direct = float(metric.distance(x, target, st.sigma, 0.5)) / yy
+    assert float(aux["data"]) == pytest.approx(direct, rel=1e-4)
+    np.testing.assert_allclose(np.asarray(aux["g_ep"]), 0.0, atol=1e-10)
+    assert float(aux["constraint"]) == pytest.approx(0.0, abs=1e-10)
+    assert float(total) == pytest.approx(float(aux["data"]) + cfg.weights.surface * float(aux["surface"]), rel=1e-6)
+
+
+def test_step_runs_the_sign_ascent_of_optim_mdmm(problem):
+    cfg, arrays, st, target, yy, s, params = _first_stage(problem)
+    lam = jnp.asarray([[0.3, 0.0], [0.1, 0.2]], DTYPE)
+    cw = jnp.asarray([1.0, 0.0], DTYPE)  # trajectory constraints off in this phase: their λ must not move
+    opt = build_optimizer(cfg)
+    step = make_step(arrays, s, opt, cfg.constraints.multiplier_lr)
+    new, _, state, new_lam, aux = step(
+        params,
+        rest_pose(arrays.skeleton, DTYPE),
+        opt.init(eqx.filter(params, eqx.is_inexact_array)),
+        lam,
+        target,
+        jnp.asarray(st.sigma, DTYPE),
+        jnp.asarray(0.5, DTYPE),
+        jnp.asarray(yy, DTYPE),
+        cw,
+        jnp.asarray(1e-3, DTYPE),
+        jnp.asarray(0.5, DTYPE),
+        jax.random.key(3),
+    )
+    g = jnp.stack([aux["g_ep"], aux["g_tr"]])
+    expected = ascend_multipliers(
+        lam, g, s.aim, multiplier_rate(cfg.constraints.multiplier_lr, 0.5), jnp.asarray([[1.0], [0.0]], DTYPE)
+    )
+    np.testing.assert_array_equal(np.asarray(new_lam), np.asarray(expected))
+    np.testing.assert_array_equal(np.asarray(new_lam[1]), np.asarray(lam[1]))
+    assert float(state.hyperparams["learning_rate"]) == pytest.approx(1e-3)  # the injected rate
+
+
+def test_optimizer_scales_the_pose_through_multi_transform(problem):
+    """Same gradients, pose scale 1 vs 4: pose leaves move 4× as far, network leaves identically."""
+    cfg, prob, _, _ = problem
+    params = eqx.filter(init_params(jax.random.key(0), cfg, prob.skeleton_normalized), eqx.is_inexact_array)
+    rng = np.random.default_rng(0)
+    grads = jax.tree_util.tree_map(lambda a: jnp.asarray(rng.normal(size=a.shape), a.dtype), params)
+    moved = {}
+    for scale in (1.0, 4.0):
+        c = dataclasses.replace(cfg, flow=dataclasses.replace(cfg.flow, pose_lr_scale=scale))
+        opt = build_optimizer(c)
+        state = opt.init(params)
+        state = state._replace(hyperparams={**state.hyperparams, "learning_rate": jnp.asarray(1e-2, DTYPE)})
+        moved[scale], _ = opt.update(grads, state, params)
+    flat_labels = jax.tree_util.tree_leaves(parameter_labels(params))
+    assert flat_labels.count("pose") == 2 and "net" in flat_labels  # rotations + translation
+    for lab, a, b in zip(flat_labels, jax.tree_util.tree_leaves(moved[1.0]), jax.tree_util.tree_leaves(moved[4.0])):
+        a, b = np.asarray(a), np.asarray(b)
+        assert np.abs(a).max() > 0
+        if lab == "pose":
+            np.testing.assert_allclose(b, 4.0 * a, rtol=1e-6)
+        else:
+            np.testing.assert_array_equal(a, b)
