@@ -71,3 +71,13 @@ def test_candidates_are_rotations_and_cover_the_principal_axis_flips(pair):
     net = Rotation.from_matrix(rots[25:])
     worst = max(min((p * n.inv()).magnitude() for n in net) for p in probe)
     assert np.degrees(worst) < 46.0
+
+
+def test_placement_setting_values():
+    from ncflow.config import apply_overrides, preset
+    from ncflow.errors import InputError
+
+    assert preset("fast").placement == "auto" and preset("paper").placement == "auto"
+    assert apply_overrides(preset("fast"), ["placement=none"]).placement == "none"
+    with pytest.raises(InputError, match="placement"):
+        apply_overrides(preset("fast"), ["placement=sideways"])

@@ -286,7 +286,7 @@ def _coerce(value, typ, where: str):
             raise InputError(f"{where}: expected an integer, got {value!r}")
         return out
     if typ is str:
-        return str(value)
+        return "none" if value is None else str(value)  # ``key=none`` of a string setting is the word
     return value
 
 
