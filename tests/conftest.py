@@ -32,3 +32,18 @@ os.environ.setdefault("NCFLOW_CACHE_DIR", tempfile.mkdtemp(prefix="ncflow-test-c
 jax.config.update("jax_compilation_cache_dir", tempfile.mkdtemp(prefix="ncflow-test-jit-"))
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+
+
+import pytest  # noqa: E402
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _free_compiled_executables():
+    """Drop JAX's in-memory executables after each test module.
+
+    One process that compiles every test's functions runs out of executable memory mappings
+    ("LLVM ERROR: Unable to allocate section memory", an abort) after a few hundred compilations;
+    identical functions in later modules come back from the on-disk compilation cache set above.
+    """
+    yield
+    jax.clear_caches()
