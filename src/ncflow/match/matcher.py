@@ -16,7 +16,6 @@ from __future__ import annotations
 import time
 
 import jax
-import numpy as np
 
 from ncflow.config import Config, preset, validate_config
 from ncflow.match.objective import Arrays
@@ -26,7 +25,7 @@ from ncflow.match.progress import Progress
 from ncflow.match.result import MatchResult, build_result
 from ncflow.match.stages import build_stages
 from ncflow.match.targets import target_measures
-from ncflow.match.train import TrainingError, train
+from ncflow.match.train import TrainingError, skinning_width, train
 
 __all__ = ["Matcher", "MatchResult", "TrainingError", "match"]
 
@@ -76,7 +75,7 @@ class Matcher:
                 prob.source.faces,
                 prob.target_vertices,
                 prob.target.faces,
-                skinning_width=cfg.flow.skinning_width * float(np.median(prob.skeleton_normalized.bone_lengths)),
+                skinning_width=skinning_width(cfg, prob.skeleton_normalized),
                 seed=cfg.seed,
             )
             initial_pose = search.pose

@@ -36,6 +36,11 @@ class TrainingError(NcflowError):
     """The optimisation failed (a non-finite loss); nothing is written."""
 
 
+def skinning_width(config, skeleton: Skeleton) -> float:
+    """τ of the skeleton-driven field's bone weights: ``flow.skinning_width`` × the median bone length."""
+    return config.flow.skinning_width * float(np.median(skeleton.bone_lengths))
+
+
 def init_params(key, config, skeleton: Skeleton, pose: Pose | None = None) -> Params:
     """Flow field (skeleton-driven when ``flow.skinning``, starting at ``pose``, default the rest pose)
     and GSO-Net, initialised from ``key``.
@@ -44,8 +49,9 @@ def init_params(key, config, skeleton: Skeleton, pose: Pose | None = None) -> Pa
     f = config.flow
     field = make_flow_field(kf, width=f.width, depth=f.depth, div_free=f.div_free, dtype=DTYPE)
     if f.skinning:
-        width = f.skinning_width * float(np.median(skeleton.bone_lengths))
-        field = SkinnedField(field, skeleton, pose=pose, width=width, interp=config.interp, dtype=DTYPE)
+        field = SkinnedField(
+            field, skeleton, pose=pose, width=skinning_width(config, skeleton), interp=config.interp, dtype=DTYPE
+        )
     return Params(field, GSONet(kg, width=f.gso_width, depth=f.gso_depth, dtype=DTYPE))
 
 
