@@ -36,6 +36,7 @@ PACKAGE = SRC / "ncflow"
 LAYERS = {
     "geometry": 0,
     "io": 1,
+    "cache": 1,
     "measures": 2,
     "skeleton": 2,
     "flow": 2,

@@ -81,3 +81,26 @@ def test_placement_setting_values():
     assert apply_overrides(preset("fast"), ["placement=none"]).placement == "none"
     with pytest.raises(InputError, match="placement"):
         apply_overrides(preset("fast"), ["placement=sideways"])
+
+
+def test_placement_candidates_start_with_the_target_as_given_and_include_the_true_turn(pair):
+    """The articulated search chooses among these: the identity must be there exactly (a standing
+    figure must not be turned by its swung limbs), and so must the inverse of a real turn."""
+    from ncflow.match.placement import placement_candidates
+
+    s, fs, t, ft = pair
+    axis = np.array([0.3, 0.8, -0.5]) / np.linalg.norm([0.3, 0.8, -0.5])
+    turn = Rotation.from_rotvec(np.radians(150.0) * axis)
+    moved = t @ turn.as_matrix().T + np.array([0.9, -0.5, 0.4])
+    cands = placement_candidates(s, fs, moved, ft, count=3)
+    assert 1 <= len(cands) <= 3
+    assert not cands[0].moved
+    np.testing.assert_array_equal(cands[0].rotation, np.eye(3))
+    np.testing.assert_array_equal(cands[0].translation, np.zeros(3))
+    rots = [Rotation.from_matrix(c.rotation) for c in cands]
+    # one of them undoes the turn (to the refinement's accuracy; a body is not a rigid fit of itself)
+    assert min(np.degrees((r * turn).magnitude()) for r in rots[1:]) < 10.0
+    # and they are distinct
+    for i in range(len(rots)):
+        for j in range(i):
+            assert np.degrees((rots[i] * rots[j].inv()).magnitude()) >= 10.0

@@ -2,9 +2,10 @@
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from ncflow.geometry.normalize import fit_normalization
-from ncflow.match.pose_search import joint_hypotheses, search_pose
+from ncflow.match.pose_search import chain_hypotheses, joint_hypotheses, search_pose, search_poses
 from ncflow.skeleton import Skeleton
 from ncflow.skeleton.kinematics import forward_kinematics, joint_positions
 from ncflow.synthetic.shapes import bend, capsule
@@ -44,12 +45,12 @@ def test_search_finds_a_large_bend_and_its_true_branch(angle):
 
 
 def test_plain_descent_from_rest_fails_where_the_search_succeeds():
-    """The same 150° bend by gradient descent from the straight rest pose alone: the pull of the
-    data term folds the capsule the wrong way (measured: 173° off), the case the search exists for."""
+    """The same 150° bend by gradient descent from the straight rest pose alone stops far short of
+    it (measured: 40° off, against 0.2° for the search), the case the search exists for."""
     skel, s, fs, t, ft, truth = _capsule_problem(150.0)
     res = search_pose(skel, s, fs, t, ft, skinning_width=0.05 * float(np.median(skel.bone_lengths)), discrete=False)
     found = np.asarray(joint_positions(forward_kinematics(skel, res.pose)), np.float64)
-    assert _bone_angles(skel, found, truth).max() > 90.0
+    assert _bone_angles(skel, found, truth).max() > 20.0
 
 
 def test_hypotheses_are_unit_rotations_about_the_bone_frame():
@@ -63,3 +64,39 @@ def test_hypotheses_are_unit_rotations_about_the_bone_frame():
     across, along = axes[:14], axes[14:]
     np.testing.assert_allclose(across[:, 2], 0.0, atol=1e-12)
     np.testing.assert_allclose(np.abs(along[:, 2]), 1.0, atol=1e-12)
+
+
+def test_chain_hypotheses_pair_each_bend_with_the_next_joint_in_both_senses():
+    """Z (crouch) and C (fist) pairs: the child bent by ∓ the same angle about the same axis."""
+    skel = Skeleton.from_arrays(
+        np.array([[0, 0, 0.0], [0, 0, 1.0], [0, 0, 2.0], [0, 0, 3.0], [1, 0, 3.0], [-1, 0, 3.0]]),
+        np.array([-1, 0, 1, 2, 3, 3]),
+    )
+    hj, hc, child = chain_hypotheses(skel, 1)
+    assert child == 2
+    np.testing.assert_allclose(hj[:18], joint_hypotheses(skel, 1))
+    np.testing.assert_allclose(hc[:18], np.tile([1.0, 0, 0, 0], (18, 1)))
+    assert hj.shape == hc.shape == (18 + 2 * 6 * 2, 4)
+    rj = Rotation.from_quat(hj[18:], scalar_first=True).as_rotvec()
+    rc = Rotation.from_quat(hc[18:], scalar_first=True).as_rotvec()
+    np.testing.assert_allclose(np.abs((rj * rc).sum(1)), np.linalg.norm(rj, axis=1) ** 2, atol=1e-9)  # same axis
+    np.testing.assert_allclose(np.linalg.norm(rc, axis=1), np.linalg.norm(rj, axis=1), atol=1e-9)  # same angle
+    senses = np.sign((rj * rc).sum(1))
+    assert (senses > 0).sum() == (senses < 0).sum() == 12
+    # joint 3 has two children, and the children of 3 move nothing: single hypotheses only
+    hj3, hc3, c3 = chain_hypotheses(skel, 3)
+    assert c3 == 3 and hj3.shape == (18, 4)
+    np.testing.assert_allclose(hc3, np.tile([1.0, 0, 0, 0], (18, 1)))
+
+
+def test_scores_of_several_placements_compare_and_pick_the_true_one():
+    """search_poses over placements of one target: scores are rigid-invariant, so the target in its
+    own place and the same target turned back exactly score alike, and a wrong turn scores worse."""
+    skel, s, fs, t, ft, _ = _capsule_problem(90.0)
+    turn = Rotation.from_rotvec([0.0, np.radians(100.0), 0.0]).as_matrix()
+    c = t.mean(0)
+    wrong = (t - c) @ turn.T + c
+    w = 0.05 * float(np.median(skel.bone_lengths))
+    right, same, bad = search_poses(skel, s, fs, [t, (t @ turn.T) @ turn, wrong], ft, skinning_width=w)
+    assert right.score == pytest.approx(same.score, abs=1e-4)
+    assert right.score < bad.score

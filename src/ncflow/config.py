@@ -153,6 +153,11 @@ class Config:
     (any rotation; :mod:`ncflow.match.placement`), outputs moved back; ``none`` trusts the input
     placement. ``pose_search``: search the skeleton pose that best explains the target before the
     flow trains (:mod:`ncflow.match.pose_search`; with ``flow.skinning`` only).
+    ``working_vertices``: train on a decimated copy of a source larger than this (its vertices a
+    subset of the source's, :func:`ncflow.geometry.decimate.decimate`); the outputs and the
+    correspondence are computed at full resolution with the trained field. ``none``: train on the
+    full source. ``jit_cache`` (``auto`` | ``none`` | a folder): JAX's persistent compilation cache
+    (:mod:`ncflow.cache`; ``$NCFLOW_JIT_CACHE`` wins); it never changes results.
     """
 
     preset: str = "fast"
@@ -168,10 +173,12 @@ class Config:
     weight_decay: float = 1e-4
     interp: str = "sclerp"
     compress: int | None = 3000
+    working_vertices: int | None = 3000
     frames: int = 20
     divergence_guard: float = 2.0
     placement: str = "auto"
     pose_search: bool = True
+    jit_cache: str = "auto"
 
     @property
     def total_steps(self) -> int:
@@ -226,6 +233,7 @@ def _paper() -> Config:
         weights=WeightsConfig(surface=20.0, tissue=10.0),
         tissue=TissueConfig(edge_length_fac=0.05, epsilon=1e-3, split_passes=2),
         compress=6000,
+        working_vertices=6000,
         frames=100,
     )
 
@@ -403,6 +411,10 @@ def validate_config(config: Config) -> Config:
         (config.optimizer in ("adabelief", "vectoradam"), "optimizer must be 'adabelief' or 'vectoradam'"),
         (config.interp in ("sclerp", "slerp"), "interp must be 'sclerp' or 'slerp'"),
         (config.compress is None or config.compress >= 10, "compress must be at least 10 (or none)"),
+        (
+            config.working_vertices is None or config.working_vertices >= 100,
+            "working_vertices must be at least 100 (or none: train on the full-resolution source)",
+        ),
         (config.frames >= 2, "frames must be at least 2"),
         (config.divergence_guard == 0 or config.divergence_guard > 1, "divergence_guard must be 0 (off) or above 1"),
         (len(config.phases) >= 1, "at least one phase is needed"),

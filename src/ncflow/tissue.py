@@ -45,7 +45,6 @@ import os
 import sys
 import tempfile
 import time
-from pathlib import Path
 from typing import NamedTuple
 
 import jax
@@ -53,6 +52,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int, PRNGKeyArray
 
+from ncflow.cache import cache_root
 from ncflow.errors import InputError
 from ncflow.geometry.topology import close_boundary
 from ncflow.io.atomic import atomic_path
@@ -354,13 +354,6 @@ def sample_tissue(key: PRNGKeyArray, centroids: Float[Array, "K 3"], n: int) -> 
     return centroids[idx]
 
 
-def _cache_dir() -> Path:
-    base = os.environ.get("NCFLOW_CACHE_DIR") or os.path.join(
-        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "ncflow"
-    )
-    return Path(base)
-
-
 def tissue_centroids(
     vertices: Float[np.ndarray, "V 3"], faces: Int[np.ndarray, "F 3"], settings
 ) -> tuple[np.ndarray, dict]:
@@ -378,7 +371,7 @@ def tissue_centroids(
     h.update(np.ascontiguousarray(vertices, np.float64).tobytes())
     h.update(np.ascontiguousarray(faces, np.int64).tobytes())
     h.update(repr((tc.edge_length_fac, tc.epsilon, tc.split_passes)).encode())
-    path = _cache_dir() / "tissue" / f"{h.hexdigest()[:32]}.npz"
+    path = cache_root() / "tissue" / f"{h.hexdigest()[:32]}.npz"
     info = {"cached": False}
     if tc.cache and path.exists():
         try:

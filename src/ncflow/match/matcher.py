@@ -17,15 +17,15 @@ import time
 
 import jax
 
+from ncflow.cache import configure_compilation_cache
 from ncflow.config import Config, preset, validate_config
 from ncflow.match.objective import Arrays
-from ncflow.match.pose_search import search_pose
 from ncflow.match.prepare import prepare
 from ncflow.match.progress import Progress
 from ncflow.match.result import MatchResult, build_result
 from ncflow.match.stages import build_stages
 from ncflow.match.targets import target_measures
-from ncflow.match.train import TrainingError, skinning_width, train
+from ncflow.match.train import TrainingError, train
 
 __all__ = ["Matcher", "MatchResult", "TrainingError", "match"]
 
@@ -44,12 +44,14 @@ class Matcher:
     def __init__(self, source, target, skeleton, config: Config | None = None, *, quiet: bool = False, stream=None):
         t0 = time.perf_counter()
         self.config = validate_config(config or preset("fast"))
+        configure_compilation_cache(self.config.jit_cache)
         self.progress = Progress(self.config.total_steps, quiet, stream)
         self.problem = prepare(source, target, skeleton, self.config, message=self.progress.message)
         self.timings = {
             "setup": 0.0,
             "placement": self.problem.placement_seconds,
             "tissue": self.problem.tissue_seconds,
+            "pose_search": self.problem.pose_search_seconds,
         }
         t1 = time.perf_counter()
         self.stages = build_stages(self.config)
@@ -64,23 +66,8 @@ class Matcher:
         t_train = time.perf_counter()
         self.progress.start = t_train
         k_init, k_train, k_eval = jax.random.split(jax.random.key(cfg.seed), 3)
-        initial_pose, search = None, None
-        if cfg.pose_search and cfg.flow.skinning:
-            t0 = time.perf_counter()
-            self.progress.message("searching the skeleton pose that explains the target ...")
-            prob = self.problem
-            search = search_pose(
-                prob.skeleton_normalized,
-                prob.source_vertices,
-                prob.source.faces,
-                prob.target_vertices,
-                prob.target.faces,
-                skinning_width=skinning_width(cfg, prob.skeleton_normalized),
-                seed=cfg.seed,
-            )
-            initial_pose = search.pose
-            self.timings["pose_search"] = time.perf_counter() - t0
-            t_train = time.perf_counter()
+        search = self.problem.pose_search
+        initial_pose = None if search is None else search.pose
         params, pose, lam, cw, history, done, rollbacks = train(
             self.arrays,
             self.targets,
@@ -100,7 +87,8 @@ class Matcher:
         timings.update(train=train_seconds, per_step=train_seconds / max(done, 1), outputs=time.perf_counter() - t_out)
         result.metrics["rollbacks"] = rollbacks
         result.metrics["pose_search"] = None if search is None else search.to_dict()
-        timings["total"] = sum(v for k, v in timings.items() if k in ("setup", "pose_search", "train", "outputs"))
+        result.metrics["placement_trials"] = list(self.problem.placement_trials)
+        timings["total"] = sum(v for k, v in timings.items() if k in ("setup", "train", "outputs"))
         return result
 
 

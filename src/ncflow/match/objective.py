@@ -116,10 +116,10 @@ class Arrays:
 
     @classmethod
     def from_problem(cls, problem: Problem) -> Arrays:
-        """Training-dtype copies of a :class:`~ncflow.match.prepare.Problem`'s arrays."""
+        """Training-dtype copies of a :class:`~ncflow.match.prepare.Problem`'s arrays (the working source)."""
         return cls(
-            source=jnp.asarray(problem.source_vertices, DTYPE),
-            faces=np.asarray(problem.source.faces),
+            source=jnp.asarray(problem.working_vertices, DTYPE),
+            faces=np.asarray(problem.working_faces),
             topology=problem.source_topology,
             edges=jnp.asarray(problem.source_topology.edges),
             centroids=jnp.asarray(problem.centroids, DTYPE),

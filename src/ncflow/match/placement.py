@@ -171,34 +171,12 @@ def _centroid(x: Varifold):
     return jnp.sum(x.weights[:, None] * x.centers, axis=0) / jnp.sum(x.weights)
 
 
-def place_target(
-    source_vertices: Float[np.ndarray, "V 3"],
-    source_faces: Int[np.ndarray, "F 3"],
-    target_vertices: Float[np.ndarray, "W 3"],
-    target_faces: Int[np.ndarray, "G 3"],
-    *,
-    sigmas: tuple[float, ...] = (0.5, 0.25, 0.12),
-    n_samples: int = 1500,
-    keep: int = 6,
-    steps: int = 40,
-    snap_degrees: float = 2.0,
-    snap_distance: float = 0.02,
-    seed: int = 0,
-) -> Placement:
-    """Rigid motion taking the target onto the source (normalised coordinates; see the module docstring).
-
-    Args:
-        source_vertices: (V, 3) normalised source vertices.
-        source_faces: (F, 3) source faces.
-        target_vertices: (W, 3) normalised target vertices.
-        target_faces: (G, 3) target faces.
-        sigmas: kernel scales of the scan (the first) and of the refinement (each in turn).
-        n_samples: Diracs per surface.
-        keep: candidates refined.
-        steps: refinement steps per σ.
-        snap_degrees: a refined identity closer than this (and ``snap_distance``) means "in place".
-        snap_distance: see ``snap_degrees`` (normalised units).
-        seed: seed of the face sampling.
+def _refined_candidates(
+    source_vertices, source_faces, target_vertices, target_faces, sigmas, n_samples, keep, steps, seed
+):
+    """The rigid scan and refinement shared by :func:`place_target` and :func:`placement_candidates`:
+    (R, 3, 3) rotations, (R, 3) translations (as A(y) = R y + t) and (R,) final scores of the refined
+    identity (first) and the ``keep − 1`` best-scanned rotations.
     """
     x = surface_diracs(source_vertices, source_faces, n_samples, seed)
     y = surface_diracs(target_vertices, target_faces, n_samples, seed + 1)
@@ -241,22 +219,95 @@ def place_target(
     final = None
     for sigma in sigmas:
         w, d, final = refine_all(start, float(sigma), w, d)
-    final = np.asarray(final, np.float64)
     mats = np.asarray(jax.vmap(_rotvec_matrix)(w), np.float64) @ np.asarray(start, np.float64)
-    best = int(np.argmax(final))
     pivot_np, shift_np = np.asarray(pivot, np.float64), np.asarray(shift, np.float64)
+    # R(y − p) + p + shift + d
+    trans = pivot_np + shift_np + np.asarray(d, np.float64) - np.einsum("kij,j->ki", mats, pivot_np)
+    return mats, trans, np.asarray(final, np.float64)
 
-    def as_affine(k):
-        r = mats[k]
-        t = pivot_np + shift_np + np.asarray(d[k], np.float64) - r @ pivot_np  # R(y − p) + p + shift + d
-        return r, t
 
-    r_id, t_id = as_affine(0)
-    in_place = (
-        np.degrees(Rotation.from_matrix(r_id).magnitude()) <= snap_degrees and np.linalg.norm(t_id) <= snap_distance
+def _in_place(rotation, translation, snap_degrees, snap_distance) -> bool:
+    return bool(
+        np.degrees(Rotation.from_matrix(rotation).magnitude()) <= snap_degrees
+        and np.linalg.norm(translation) <= snap_distance
     )
-    if final[0] >= final[best] - 1e-3 and in_place:
+
+
+def place_target(
+    source_vertices: Float[np.ndarray, "V 3"],
+    source_faces: Int[np.ndarray, "F 3"],
+    target_vertices: Float[np.ndarray, "W 3"],
+    target_faces: Int[np.ndarray, "G 3"],
+    *,
+    sigmas: tuple[float, ...] = (0.5, 0.25, 0.12),
+    n_samples: int = 1500,
+    keep: int = 6,
+    steps: int = 40,
+    snap_degrees: float = 2.0,
+    snap_distance: float = 0.02,
+    seed: int = 0,
+) -> Placement:
+    """Rigid motion taking the target onto the source (normalised coordinates; see the module docstring).
+
+    Args:
+        source_vertices: (V, 3) normalised source vertices.
+        source_faces: (F, 3) source faces.
+        target_vertices: (W, 3) normalised target vertices.
+        target_faces: (G, 3) target faces.
+        sigmas: kernel scales of the scan (the first) and of the refinement (each in turn).
+        n_samples: Diracs per surface.
+        keep: candidates refined.
+        steps: refinement steps per σ.
+        snap_degrees: a refined identity closer than this (and ``snap_distance``) means "in place".
+        snap_distance: see ``snap_degrees`` (normalised units).
+        seed: seed of the face sampling.
+    """
+    mats, trans, final = _refined_candidates(
+        source_vertices, source_faces, target_vertices, target_faces, sigmas, n_samples, keep, steps, seed
+    )
+    best = int(np.argmax(final))
+    if final[0] >= final[best] - 1e-3 and _in_place(mats[0], trans[0], snap_degrees, snap_distance):
         return Placement(np.eye(3), np.zeros(3), float(final[0]), float(final[0]), moved=False)
     k = 0 if final[0] >= final[best] - 1e-3 else best
-    r, t = as_affine(k)
-    return Placement(r, t, float(final[k]), float(final[0]), moved=True)
+    return Placement(mats[k], trans[k], float(final[k]), float(final[0]), moved=True)
+
+
+def placement_candidates(
+    source_vertices: Float[np.ndarray, "V 3"],
+    source_faces: Int[np.ndarray, "F 3"],
+    target_vertices: Float[np.ndarray, "W 3"],
+    target_faces: Int[np.ndarray, "G 3"],
+    *,
+    count: int = 3,
+    distinct_degrees: float = 10.0,
+    sigmas: tuple[float, ...] = (0.5, 0.25, 0.12),
+    n_samples: int = 1500,
+    keep: int = 6,
+    steps: int = 40,
+    snap_degrees: float = 2.0,
+    snap_distance: float = 0.02,
+    seed: int = 0,
+) -> list[Placement]:
+    """Rigid placements worth an articulated look: the target as given (the identity, always first),
+    then at most ``count − 1`` refined rigid fits, best rigid score first, each at least
+    ``distinct_degrees`` from the identity and from each other.
+
+    A rigid fit of an articulated pair is pulled by its limbs: a walking figure that stands in place
+    is turned by ~30° towards its swung legs. The rigid score alone cannot tell that turn from a real
+    one, so the matcher lets the articulated pose search (:mod:`ncflow.match.pose_search`) choose
+    among these candidates. Arguments as :func:`place_target`.
+    """
+    mats, trans, final = _refined_candidates(
+        source_vertices, source_faces, target_vertices, target_faces, sigmas, n_samples, keep, steps, seed
+    )
+    out = [Placement(np.eye(3), np.zeros(3), float(final[0]), float(final[0]), moved=False)]
+    for k in np.argsort(-final, kind="stable"):
+        if len(out) >= count:
+            break
+        if _in_place(mats[k], trans[k], snap_degrees, snap_distance):
+            continue
+        r = Rotation.from_matrix(mats[k])
+        if any((r * Rotation.from_matrix(o.rotation).inv()).magnitude() < np.radians(distinct_degrees) for o in out):
+            continue
+        out.append(Placement(mats[k], trans[k], float(final[k]), float(final[0]), moved=True))
+    return out

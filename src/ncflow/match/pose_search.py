@@ -30,6 +30,7 @@ constraints, which are refitted at every step.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 
 import jax
 import jax.numpy as jnp
@@ -76,25 +77,60 @@ class PoseSearchResult:
         }
 
 
-def joint_hypotheses(skeleton: Skeleton, joint: int) -> Float[np.ndarray, "H 4"]:
-    """Local rotations (w, x, y, z) tried at ``joint``: the identity first, then bends of ±45°, ±90°,
-    ±135° and 180° about the two axes across the mean direction of its child bones and twists of
-    ±90° and 180° about it.
-    """
+def _bend_axes(skeleton: Skeleton, joint: int):
     children = np.flatnonzero(np.asarray(skeleton.parents) == joint)
     d = np.asarray(skeleton.positions)[children].mean(0) - np.asarray(skeleton.positions)[joint]
     a = d / max(np.linalg.norm(d), 1e-12)
     u = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
     u /= np.linalg.norm(u)
-    v = np.cross(a, u)
+    return a, u, np.cross(a, u)
+
+
+_BENDS = (45, -45, 90, -90, 135, -135, 180)
+
+
+def joint_hypotheses(skeleton: Skeleton, joint: int) -> Float[np.ndarray, "H 4"]:
+    """Local rotations (w, x, y, z) tried at ``joint``: the identity first, then bends of ±45°, ±90°,
+    ±135° and 180° about the two axes across the mean direction of its child bones and twists of
+    ±90° and 180° about it.
+    """
+    a, u, v = _bend_axes(skeleton, joint)
     rotvecs = [np.zeros(3)]
     for axis in (u, v):
-        for deg in (45, -45, 90, -90, 135, -135, 180):
+        for deg in _BENDS:
             rotvecs.append(np.radians(deg) * axis)
     for deg in (90, -90, 180):
         rotvecs.append(np.radians(deg) * a)
-    q = Rotation.from_rotvec(np.asarray(rotvecs)).as_quat(scalar_first=True)
-    return q
+    return Rotation.from_rotvec(np.asarray(rotvecs)).as_quat(scalar_first=True)
+
+
+def chain_hypotheses(skeleton: Skeleton, joint: int) -> tuple[Float[np.ndarray, "H 4"], Float[np.ndarray, "H 4"], int]:
+    """Pairs of local rotations for ``joint`` and the next joint down its chain, and that joint.
+
+    A bend that only pays off together with the next one — a hip flexed by 90° with the knee bent
+    back (a crouch), a finger's first joint curled with the second (a fist) — scores worse alone
+    than no bend and falls out of the beam. So when ``joint`` has one child that itself moves a bone,
+    each bend of ±45°, ±90° and ±135° of ``joint`` is also tried with the child bent by the same
+    angle, about the same axis, in the opposite (a Z) and in the same sense (a C). Returns
+    (H, 4) rotations of ``joint`` (:func:`joint_hypotheses` first), (H, 4) of the child (identity
+    where it does not move) and the child's index (``joint`` itself when there is no such child).
+    """
+    parents = np.asarray(skeleton.parents)
+    single = joint_hypotheses(skeleton, joint)
+    children = np.flatnonzero(parents == joint)
+    ident = np.tile([1.0, 0.0, 0.0, 0.0], (single.shape[0], 1))
+    if children.size != 1 or not np.any(parents == children[0]):
+        return single, ident, joint
+    _, u, v = _bend_axes(skeleton, joint)
+    first, second = [], []
+    for axis in (u, v):
+        for deg in _BENDS[:-1]:
+            for sense in (-1, 1):
+                first.append(np.radians(deg) * axis)
+                second.append(sense * np.radians(deg) * axis)
+    q1 = Rotation.from_rotvec(np.asarray(first)).as_quat(scalar_first=True)
+    q2 = Rotation.from_rotvec(np.asarray(second)).as_quat(scalar_first=True)
+    return np.concatenate([single, q1]), np.concatenate([ident, q2]), int(children[0])
 
 
 def _skinned(skeleton, weights, x: Varifold, pose: Pose) -> Varifold:
@@ -114,15 +150,7 @@ def search_pose(
     target_faces: Int[np.ndarray, "G 3"],
     *,
     skinning_width: float,
-    interp: str = "sclerp",
-    sigma_search: float = 0.3,
-    sigmas_refine: tuple[float, ...] = (0.3, 0.15),
-    beam: int = 4,
-    refine_steps: int = 40,
-    n_search: int = 600,
-    n_refine: int = 1200,
-    seed: int = 0,
-    discrete: bool = True,
+    **options,
 ) -> PoseSearchResult:
     """The pose of ``skeleton`` whose skinned source best matches the target (see the module docstring).
 
@@ -133,7 +161,48 @@ def search_pose(
         target_vertices: (W, 3) normalised, placed target vertices.
         target_faces: (G, 3) target faces.
         skinning_width: τ of the bone weights (as :class:`~ncflow.flow.SkinnedField`).
-        interp: skeleton interpolation (only t = 1 is used, where both agree).
+        **options: as :func:`search_poses`.
+    """
+    return search_poses(
+        skeleton,
+        source_vertices,
+        source_faces,
+        [target_vertices],
+        target_faces,
+        skinning_width=skinning_width,
+        **options,
+    )[0]
+
+
+def search_poses(
+    skeleton: Skeleton,
+    source_vertices: Float[np.ndarray, "V 3"],
+    source_faces: Int[np.ndarray, "F 3"],
+    target_candidates: Sequence[Float[np.ndarray, "W 3"]],
+    target_faces: Int[np.ndarray, "G 3"],
+    *,
+    skinning_width: float,
+    sigma_search: float = 0.3,
+    sigmas_refine: tuple[float, ...] = (0.3, 0.15),
+    beam: int = 4,
+    refine_steps: int = 100,
+    n_search: int = 600,
+    n_refine: int = 1200,
+    seed: int = 0,
+    discrete: bool = True,
+    root_turns: bool = False,
+) -> list[PoseSearchResult]:
+    """:func:`search_pose` for several placements of one target (the same faces, vertices moved
+    rigidly), compiled once; the scores are comparable (the same Diracs, moved, and ⟨Y, Y⟩ is
+    invariant under rigid motions), so the lowest tells the placement that explains the target best.
+
+    Args:
+        skeleton: the source skeleton (normalised coordinates, as the training uses it).
+        source_vertices: (V, 3) normalised source vertices.
+        source_faces: (F, 3) source faces.
+        target_candidates: C arrays (W, 3): the normalised target, placed in each candidate way.
+        target_faces: (G, 3) target faces.
+        skinning_width: τ of the bone weights (as :class:`~ncflow.flow.SkinnedField`).
         sigma_search: kernel scale of the discrete search.
         sigmas_refine: kernel scales of the gradient refinement, in turn.
         beam: number of complete poses kept between joints.
@@ -143,82 +212,94 @@ def search_pose(
         seed: seed of the face sampling.
         discrete: run the discrete search (False: gradient descent from the rest pose alone, the
             baseline the search is measured against).
+        root_turns: try the local rotations at the root as well (off: the global orientation is
+            the placement's, :func:`~ncflow.match.placement.placement_candidates`; the refinement
+            still turns the root a little).
     """
-    del interp
     dt = jnp.float32
     bones = np.asarray(skeleton.bones)
     pos = jnp.asarray(skeleton.positions, dt)
 
-    def problem(n, offset):
+    def source_diracs(n, offset):
         x = surface_diracs(source_vertices, source_faces, n, seed + offset)
-        y = surface_diracs(target_vertices, target_faces, n, seed + offset + 1)
         w = skinning_weights(x.centers, pos[bones[:, 0]], pos[bones[:, 1]], skinning_width).astype(dt)
-        return x, y, w
+        return x, w
 
-    coarse, fine = problem(n_search, 2), problem(n_refine, 4)
+    src_coarse, src_fine = source_diracs(n_search, 2), source_diracs(n_refine, 4)
 
-    def distance(pose: Pose, sigma, data):
-        x, y, w = data
+    def distance(pose: Pose, sigma, src, y):
+        x, w = src
         xs = _skinned(skeleton, w, x, pose)
         yy = varifold_inner(y, y, sigma, 0.5)
         return (varifold_inner(xs, xs, sigma, 0.5) - 2.0 * varifold_inner(xs, y, sigma, 0.5) + yy) / yy
 
     rest = rest_pose(skeleton, dt)
     # lax.map, not vmap: a batch of blocked kernel sums runs ~6× faster one after the other on CPU
-    score_fine = jax.jit(lambda poses, s: jax.lax.map(lambda p: distance(p, s, fine), poses))
+    score_fine = jax.jit(lambda poses, s, y: jax.lax.map(lambda p: distance(p, s, src_fine, y), poses))
 
     @jax.jit
-    def expand(rotations, translations, hyp, j):
-        """Every beam pose × every local rotation of joint j, and their scores."""
+    def expand(rotations, translations, hyp, hyp_child, j, c, y):
+        """Every beam pose × every local rotation pair of joint j and its child c, and their scores."""
         nb, nh = rotations.shape[0], hyp.shape[0]
         rot = jnp.repeat(rotations, nh, axis=0)
         rot = rot.at[:, j].set(quat_mul(rot[:, j], jnp.tile(hyp, (nb, 1))))
+        rot = rot.at[:, c].set(quat_mul(rot[:, c], jnp.tile(hyp_child, (nb, 1))))
         cand = Pose(rot, jnp.repeat(translations, nh, axis=0))
-        return cand, jax.lax.map(lambda p: distance(p, sigma_search, coarse), cand)
-
-    beams = Pose(rest.rotations[None], rest.translation[None])
-    n_scored = 1
-    has_child = np.bincount(np.asarray(skeleton.parents)[1:], minlength=skeleton.n_joints) > 0
-    for level in skeleton.levels if discrete else ():
-        for j in level:
-            j = int(j)
-            if not has_child[j]:
-                continue
-            cand, s = expand(beams.rotations, beams.translation, jnp.asarray(joint_hypotheses(skeleton, j), dt), j)
-            s = np.asarray(s)
-            n_scored += s.shape[0]
-            keep = np.argsort(s, kind="stable")[:beam]
-            beams = Pose(cand.rotations[keep], cand.translation[keep])
+        return cand, jax.lax.map(lambda p: distance(p, sigma_search, src_coarse, y), cand)
 
     opt = optax.adam(0.01)
 
-    def refine(pose: Pose, sigma):
+    def refine(pose: Pose, sigma, y):
         state = opt.init(pose)
 
         def body(carry, _):
             p, st = carry
-            g = jax.grad(lambda q: distance(q, sigma, fine))(p)
+            g = jax.grad(lambda q: distance(q, sigma, src_fine, y))(p)
             u, st = opt.update(g, st, p)
             p = optax.apply_updates(p, u)
             return (Pose(p.rotations / jnp.linalg.norm(p.rotations, axis=-1, keepdims=True), p.translation), st), None
 
         return jax.lax.scan(body, (pose, state), None, length=refine_steps)[0][0]
 
-    refine_all = jax.jit(lambda poses, s: jax.lax.map(lambda p: refine(p, s), poses))
-    candidates = Pose(
-        jnp.concatenate([beams.rotations, rest.rotations[None]]),
-        jnp.concatenate([beams.translation, rest.translation[None]]),
-    )
-    for sigma in sigmas_refine:
-        candidates = refine_all(candidates, float(sigma))
-    final = np.asarray(score_fine(candidates, float(sigmas_refine[-1])))
-    rest_score = float(
-        np.asarray(score_fine(Pose(rest.rotations[None], rest.translation[None]), float(sigmas_refine[-1])))[0]
-    )
-    best = int(np.argmin(final))
-    if final[best] >= rest_score:
-        return PoseSearchResult(rest, rest_score, rest_score, n_scored)
-    # the score cannot see the twist of one-child joints (the field moves by the swing alone): drop it
-    pose = swing_only(skeleton, Pose(candidates.rotations[best], candidates.translation[best]))
-    rot = pose.rotations / jnp.linalg.norm(pose.rotations, axis=-1, keepdims=True)
-    return PoseSearchResult(Pose(rot, pose.translation), float(final[best]), rest_score, n_scored)
+    refine_all = jax.jit(lambda poses, s, y: jax.lax.map(lambda p: refine(p, s, y), poses))
+    has_child = np.bincount(np.asarray(skeleton.parents)[1:], minlength=skeleton.n_joints) > 0
+    results = []
+    for target_vertices in target_candidates:
+        y_coarse = surface_diracs(target_vertices, target_faces, n_search, seed + 3)
+        y_fine = surface_diracs(target_vertices, target_faces, n_refine, seed + 5)
+        beams = Pose(rest.rotations[None], rest.translation[None])
+        n_scored = 1
+        for level in skeleton.levels if discrete else ():
+            for j in level:
+                j = int(j)
+                if not has_child[j] or (skeleton.parents[j] < 0 and not root_turns):
+                    continue
+                hyp, hyp_child, c = chain_hypotheses(skeleton, j)
+                cand, s = expand(
+                    beams.rotations, beams.translation, jnp.asarray(hyp, dt), jnp.asarray(hyp_child, dt), j, c, y_coarse
+                )
+                s = np.asarray(s)
+                n_scored += s.shape[0]
+                keep = np.argsort(s, kind="stable")[:beam]
+                beams = Pose(cand.rotations[keep], cand.translation[keep])
+        candidates = Pose(
+            jnp.concatenate([beams.rotations, rest.rotations[None]]),
+            jnp.concatenate([beams.translation, rest.translation[None]]),
+        )
+        for sigma in sigmas_refine:
+            candidates = refine_all(candidates, float(sigma), y_fine)
+        final = np.asarray(score_fine(candidates, float(sigmas_refine[-1]), y_fine))
+        rest_score = float(
+            np.asarray(
+                score_fine(Pose(rest.rotations[None], rest.translation[None]), float(sigmas_refine[-1]), y_fine)
+            )[0]
+        )
+        best = int(np.argmin(final))
+        if final[best] >= rest_score:
+            results.append(PoseSearchResult(rest, rest_score, rest_score, n_scored))
+            continue
+        # the score cannot see the twist of one-child joints (the field moves by the swing alone): drop it
+        pose = swing_only(skeleton, Pose(candidates.rotations[best], candidates.translation[best]))
+        rot = pose.rotations / jnp.linalg.norm(pose.rotations, axis=-1, keepdims=True)
+        results.append(PoseSearchResult(Pose(rot, pose.translation), float(final[best]), rest_score, n_scored))
+    return results

@@ -2,8 +2,10 @@
 
 Loads and checks the meshes and the skeleton, fits the one similarity that normalises source,
 target and skeleton (same identity, same scale), places the target rigidly on the source
-(:mod:`ncflow.match.placement`), builds the topology tables and draws the
-soft-tissue centroids (fTetWild once per source, cached: :func:`ncflow.tissue.tissue_centroids`).
+(:mod:`ncflow.match.placement`) and searches the skeleton pose that explains it
+(:mod:`ncflow.match.pose_search`) — the two together, since a rigid fit alone is pulled by the
+limbs of an articulated target — builds the topology tables and draws the soft-tissue centroids
+(fTetWild once per source, cached: :func:`ncflow.tissue.tissue_centroids`).
 """
 
 from __future__ import annotations
@@ -13,14 +15,16 @@ import time
 
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Float
+from jaxtyping import Float, Int
 
 from ncflow.errors import InputError
+from ncflow.geometry.decimate import decimate
 from ncflow.geometry.mesh import Mesh
 from ncflow.geometry.normalize import Normalization, fit_normalization
 from ncflow.geometry.topology import Topology, mesh_topology
 from ncflow.io.meshes import load_mesh
-from ncflow.match.placement import Placement, place_target
+from ncflow.match.placement import Placement, place_target, placement_candidates
+from ncflow.match.pose_search import PoseSearchResult, search_poses
 from ncflow.skeleton import Skeleton, check_inside, load_skeleton
 from ncflow.tissue import tissue_centroids
 
@@ -34,16 +38,26 @@ class Problem:
     Attributes:
         source, target, skeleton: the inputs as given (user coordinates).
         normalization: the similarity applied to all three.
-        source_vertices: (V, 3) normalised source vertices (float64).
+        source_vertices: (V, 3) normalised source vertices (float64), full resolution.
+        working_vertices: (n, 3) the normalised source the training runs on: the source itself, or
+            a decimated copy of it when it has more than ``working_vertices`` vertices
+            (:func:`~ncflow.geometry.decimate.decimate`), made of source vertices.
+        working_faces: (m, 3) its triangles.
+        working_kept: (n,) index of each working vertex in the source.
         target_vertices: (W, 3) normalised target vertices, placed on the source (float64).
         placement: the rigid motion that placed them (:mod:`ncflow.match.placement`).
         skeleton_normalized: the skeleton in normalised coordinates.
-        source_topology, target_topology: edge tables of both meshes.
+        source_topology: edge table of the working source.
+        target_topology: edge table of the target.
         bone_radii: (B,) bone-sample radius factor per bone.
         centroids: (K, 3) soft-tissue tet centroids of the normalised source ((0, 3) when disabled).
         tissue_info: how the centroids were obtained (cache hit, counts, seconds).
         warnings: joints slightly outside the source surface.
         tissue_seconds: wall time of obtaining the centroids.
+        placement_seconds: wall time of the placement (its pose searches excluded).
+        pose_search: the skeleton pose found for the chosen placement (None when the search is off).
+        pose_search_seconds: wall time of the pose search(es).
+        placement_trials: per placement candidate tried, its angle and articulated score.
     """
 
     source: Mesh
@@ -51,6 +65,9 @@ class Problem:
     skeleton: Skeleton
     normalization: Normalization
     source_vertices: Float[np.ndarray, "V 3"]
+    working_vertices: Float[np.ndarray, "n 3"]
+    working_faces: Int[np.ndarray, "m 3"]
+    working_kept: Int[np.ndarray, " n"]
     target_vertices: Float[np.ndarray, "W 3"]
     placement: Placement
     skeleton_normalized: Skeleton
@@ -62,6 +79,55 @@ class Problem:
     warnings: tuple[str, ...]
     tissue_seconds: float = 0.0
     placement_seconds: float = 0.0
+    pose_search: PoseSearchResult | None = None
+    pose_search_seconds: float = 0.0
+    placement_trials: tuple[dict, ...] = ()
+
+
+def skinning_width(config, skeleton: Skeleton) -> float:
+    """τ of the skeleton-driven field's bone weights: ``flow.skinning_width`` × the median bone length."""
+    return config.flow.skinning_width * float(np.median(skeleton.bone_lengths))
+
+
+def place_and_pose(src_v, src_f, tgt_v, tgt_f, skeleton: Skeleton, config, message=lambda text: None):
+    """The target's placement and the source skeleton's initial pose (normalised coordinates).
+
+    With ``placement = "auto"`` and the pose search on (``pose_search`` and ``flow.skinning``), each
+    of :func:`~ncflow.match.placement.placement_candidates` (the target as given first) gets its
+    own pose search and the lowest articulated score wins; without the search, the best rigid fit
+    (:func:`~ncflow.match.placement.place_target`). Returns (placement, pose search result or None,
+    trials, placement seconds, pose-search seconds).
+    """
+    searching = bool(config.pose_search and config.flow.skinning)
+    t0 = time.perf_counter()
+    if config.placement != "auto":
+        placements = [Placement.identity()]
+    elif searching:
+        message("placing the target on the source ...")
+        placements = placement_candidates(src_v, src_f, tgt_v, tgt_f, seed=config.seed)
+    else:
+        message("placing the target on the source ...")
+        placements = [place_target(src_v, src_f, tgt_v, tgt_f, seed=config.seed)]
+    t_place = time.perf_counter() - t0
+    if not searching:
+        return placements[0], None, (), t_place, 0.0
+    t0 = time.perf_counter()
+    message("searching the skeleton pose that explains the target ...")
+    results = search_poses(
+        skeleton,
+        src_v,
+        src_f,
+        [pl.apply(tgt_v) for pl in placements],
+        tgt_f,
+        skinning_width=skinning_width(config, skeleton),
+        seed=config.seed,
+    )
+    best = int(np.argmin([r.score for r in results]))
+    trials = tuple(
+        {"angle_degrees": pl.to_dict()["angle_degrees"], "rigid_score": pl.score, "pose_score": r.score}
+        for pl, r in zip(placements, results)
+    )
+    return placements[best], results[best], trials, t_place, time.perf_counter() - t0
 
 
 def load_inputs(source, target, skeleton) -> tuple[Mesh, Mesh, Skeleton]:
@@ -103,18 +169,17 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Prob
     src_v = norm.apply(src.vertices)
     skel_n = skel.with_positions(norm.apply(skel.positions))
     tgt_v = norm.apply(tgt.vertices)
-    t_place = time.perf_counter()
-    if config.placement == "auto":
-        message("placing the target on the source ...")
-        placement = place_target(src_v, src.faces, tgt_v, tgt.faces, seed=config.seed)
-        tgt_v = placement.apply(tgt_v)
-    else:
-        placement = Placement.identity()
-    t_place = time.perf_counter() - t_place
+    if config.working_vertices is not None and src.n_vertices > config.working_vertices:
+        message(f"decimating the source to about {config.working_vertices} vertices for training ...")
+    work = decimate(src_v, src.faces, config.working_vertices or src.n_vertices)
+    placement, search, trials, t_place, t_search = place_and_pose(
+        work.vertices, work.faces, tgt_v, tgt.faces, skel_n, config, message
+    )
+    tgt_v = placement.apply(tgt_v)
     t0 = time.perf_counter()
     if config.sampling.tissue_samples > 0 and config.weights.tissue > 0:
         message("tetrahedralising the source for soft-tissue samples ...")
-        centroids, tissue_info = tissue_centroids(src_v, src.faces, config.tissue)
+        centroids, tissue_info = tissue_centroids(work.vertices, work.faces, config.tissue)
     else:
         centroids, tissue_info = np.zeros((0, 3)), {"disabled": True}
     return Problem(
@@ -123,10 +188,13 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Prob
         skeleton=skel,
         normalization=norm,
         source_vertices=src_v,
+        working_vertices=work.vertices,
+        working_faces=work.faces,
+        working_kept=work.kept,
         target_vertices=tgt_v,
         placement=placement,
         skeleton_normalized=skel_n,
-        source_topology=mesh_topology(src.faces, src.n_vertices, name=src.name),
+        source_topology=mesh_topology(work.faces, work.vertices.shape[0], name=src.name),
         target_topology=mesh_topology(tgt.faces, tgt.n_vertices, name=tgt.name),
         bone_radii=skel_n.bone_radii(config.sampling.bone_radius),
         centroids=centroids,
@@ -134,4 +202,7 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Prob
         warnings=tuple(warnings),
         tissue_seconds=time.perf_counter() - t0,
         placement_seconds=t_place,
+        pose_search=search,
+        pose_search_seconds=t_search,
+        placement_trials=trials,
     )

@@ -23,7 +23,7 @@ from ncflow.errors import NcflowError
 from ncflow.flow import GSONet, SkinnedField, make_flow_field
 from ncflow.match.guard import DivergenceGuard
 from ncflow.match.objective import Arrays, Params, Settings, objective
-from ncflow.match.prepare import DTYPE
+from ncflow.match.prepare import DTYPE, skinning_width
 from ncflow.match.progress import Progress
 from ncflow.match.stages import Stage, phase_schedule
 from ncflow.optim import adabelief_cautious, vectoradam_cautious
@@ -34,11 +34,6 @@ from ncflow.skeleton.kinematics import Pose, rest_pose
 
 class TrainingError(NcflowError):
     """The optimisation failed (a non-finite loss); nothing is written."""
-
-
-def skinning_width(config, skeleton: Skeleton) -> float:
-    """τ of the skeleton-driven field's bone weights: ``flow.skinning_width`` × the median bone length."""
-    return config.flow.skinning_width * float(np.median(skeleton.bone_lengths))
 
 
 def init_params(key, config, skeleton: Skeleton, pose: Pose | None = None) -> Params:
