@@ -7,11 +7,11 @@ set -euo pipefail
 DATA="$(cd "$(dirname "$0")/../.." && pwd)/shared/data"
 WORK="${1:-ncflow-benchmark}"
 mkdir -p "$WORK" && cd "$WORK"
-ncflow make-pairs --kind humanoid --n 5 --seed 10 pairs/humanoid
-ncflow make-pairs --kind hand --n 5 --seed 10 pairs/hand
-ncflow make-pairs --mano "$DATA/mano/mano_right.npz" --poses 0,777,100,1200,250,900,400,1500,600,1100 --retriangulate pairs/mano
-ncflow make-pairs --gltf "$DATA/gltf/CesiumMan.glb" --times 0,1.0 --retriangulate pairs/cesiumman
-ncflow make-pairs --gltf "$DATA/gltf/Fox.glb" --animation Walk --times 0,0.35 --retriangulate pairs/fox
+ncflow make-pairs --overwrite --kind humanoid --n 5 --seed 10 pairs/humanoid
+ncflow make-pairs --overwrite --kind hand --n 5 --seed 10 pairs/hand
+ncflow make-pairs --overwrite --mano "$DATA/mano/mano_right.npz" --poses 0,777,100,1200,250,900,400,1500,600,1100 --retriangulate pairs/mano
+ncflow make-pairs --overwrite --gltf "$DATA/gltf/CesiumMan.glb" --times 0,1.0 --retriangulate pairs/cesiumman
+ncflow make-pairs --overwrite --gltf "$DATA/gltf/Fox.glb" --animation Walk --times 0,0.35 --retriangulate pairs/fox
 python3 - <<'PY'
 import csv
 rows = []

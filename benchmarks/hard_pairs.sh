@@ -25,33 +25,33 @@ mkdir -p "$WORK" && cd "$WORK"
 start=$SECONDS
 
 if [[ -f "$MANO" ]]; then
-  ncflow make-pairs --mano "$MANO" --poses flat,fist --retriangulate pairs/mano_flat_fist
-  ncflow make-pairs --mano "$MANO" --poses 0,207 --retriangulate --seed 1 pairs/mano_0_207
-  ncflow make-pairs --mano "$MANO" --poses 0,777 --retriangulate --seed 2 \
+  ncflow make-pairs --overwrite --mano "$MANO" --poses flat,fist --retriangulate pairs/mano_flat_fist
+  ncflow make-pairs --overwrite --mano "$MANO" --poses 0,207 --retriangulate --seed 1 pairs/mano_0_207
+  ncflow make-pairs --overwrite --mano "$MANO" --poses 0,777 --retriangulate --seed 2 \
     --target-rotation 20 --target-translation 0.3 pairs/mano_0_777_r20
-  ncflow make-pairs --mano "$MANO" --poses 100,1200 --retriangulate --seed 3 \
+  ncflow make-pairs --overwrite --mano "$MANO" --poses 100,1200 --retriangulate --seed 3 \
     --target-rotation 90 --target-translation 0.5 pairs/mano_100_1200_r90
-  ncflow make-pairs --mano "$MANO" --poses 250,900 --retriangulate --seed 4 \
+  ncflow make-pairs --overwrite --mano "$MANO" --poses 250,900 --retriangulate --seed 4 \
     --target-rotation 180 --target-translation 1.0 pairs/mano_250_900_r180
 else
   echo "skipping the MANO pairs: $MANO not found" >&2
 fi
-ncflow make-pairs --kind humanoid --seed 20 --articulation cross pairs/humanoid_cross
-ncflow make-pairs --kind humanoid --seed 21 --articulation stride \
+ncflow make-pairs --overwrite --kind humanoid --seed 20 --articulation cross pairs/humanoid_cross
+ncflow make-pairs --overwrite --kind humanoid --seed 21 --articulation stride \
   --target-rotation 180 --target-translation 0.5 pairs/humanoid_stride_r180
-ncflow make-pairs --kind humanoid --seed 22 --articulation crouch pairs/humanoid_crouch
-ncflow make-pairs --kind hand --seed 20 --articulation curl pairs/hand_curl
-ncflow make-pairs --kind hand --seed 21 --large-joints 4 \
+ncflow make-pairs --overwrite --kind humanoid --seed 22 --articulation crouch pairs/humanoid_crouch
+ncflow make-pairs --overwrite --kind hand --seed 20 --articulation curl pairs/hand_curl
+ncflow make-pairs --overwrite --kind hand --seed 21 --large-joints 4 \
   --target-rotation 90 --target-translation 0.3 pairs/hand_curled4_r90
-ncflow make-pairs --kind quadruped --seed 20 --articulation gallop \
+ncflow make-pairs --overwrite --kind quadruped --seed 20 --articulation gallop \
   --target-rotation 45 --target-translation 0.3 pairs/quadruped_gallop_r45
 if [[ -f "$GLTF/CesiumMan.glb" ]]; then
-  ncflow make-pairs --gltf "$GLTF/CesiumMan.glb" --times 0,1.0 --retriangulate pairs/cesiumman_half_cycle
+  ncflow make-pairs --overwrite --gltf "$GLTF/CesiumMan.glb" --times 0,1.0 --retriangulate pairs/cesiumman_half_cycle
 else
   echo "skipping CesiumMan: $GLTF/CesiumMan.glb not found" >&2
 fi
 if [[ -f "$GLTF/Fox.glb" ]]; then
-  ncflow make-pairs --gltf "$GLTF/Fox.glb" --animation Walk --times 0,0.35 --retriangulate pairs/fox_walk
+  ncflow make-pairs --overwrite --gltf "$GLTF/Fox.glb" --animation Walk --times 0,0.35 --retriangulate pairs/fox_walk
 else
   echo "skipping Fox: $GLTF/Fox.glb not found" >&2
 fi

@@ -23,19 +23,48 @@ Files: a TOML or YAML mapping with the same nesting as :class:`Config`, e.g. ::
 
 ``phases``, when given, replaces the preset's list. Dotted command-line overrides
 (``flow.width=96``) are applied last.
+
+Every setting is checked when a configuration is loaded or overridden (:func:`validate_config`):
+numbers finite and in range, integers integral (``seed``: 0 ≤ seed < 2**32), choices among
+their words; a file must be a mapping with string keys, at most 1 MiB, and a YAML file may not
+use aliases (``*name``: a few hundred bytes of nested aliases expand to gigabytes). Error
+messages quote at most :data:`QUOTE_LIMIT` characters of any value.
+
+Over 500 lines: the settings, their presets, the file readers and the range checks are one
+contract; a setting and its check are kept in one file so that they cannot drift apart.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import tomllib
+import types
 import typing
 from dataclasses import dataclass, field
 
 from ncflow.errors import InputError
 
 METRICS = ("varifold", "normal-cycles")
+#: largest seed + 1 (NumPy and JAX take 32-bit seeds)
+SEED_LIMIT = 2**32
+#: characters of a user's value quoted in an error message
+QUOTE_LIMIT = 80
+#: largest configuration file read
+MAX_CONFIG_BYTES = 1 << 20
+#: most YAML nodes of a configuration file
+MAX_YAML_NODES = 100_000
+
+
+def quote(value, limit: int = QUOTE_LIMIT) -> str:
+    """``repr(value)`` cut to ``limit`` characters (``…`` marks a cut), for one-line error messages."""
+    try:
+        text = repr(value)
+    except Exception:  # noqa: BLE001 -- a broken or too deep __repr__ must not hide the real error
+        text = f"<{type(value).__name__}>"
+    text = " ".join(text.split())
+    return text if len(text) <= limit else text[: limit - 1] + "…"
 
 
 @dataclass(frozen=True)
@@ -62,7 +91,11 @@ class FlowConfig:
 
 @dataclass(frozen=True)
 class SamplingConfig:
-    """Per-step samples (paper §4.6): points per bone, tissue centroids, surface edges for the ARAP term."""
+    """Per-step samples (paper §4.6): points per bone, tissue centroids, surface edges for the ARAP term.
+
+    ``surface_edges`` ≥ 0: edges drawn per step for the ARAP term; 0 means all edges (the ``paper``
+    preset).
+    """
 
     bone_samples: int = 16
     bone_radius: float = 0.1
@@ -244,7 +277,7 @@ PRESETS: dict[str, typing.Callable[[], Config]] = {"fast": _fast, "paper": _pape
 def preset(name: str) -> Config:
     """A preset configuration by name (``fast`` or ``paper``)."""
     if name not in PRESETS:
-        raise InputError(f"unknown preset {name!r}; choose from {', '.join(PRESETS)}")
+        raise InputError(f"unknown preset {quote(name)}; choose from {', '.join(PRESETS)}")
     return PRESETS[name]()
 
 
@@ -253,29 +286,36 @@ def config_to_dict(config: Config) -> dict:
     return dataclasses.asdict(config)
 
 
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
 def _coerce(value, typ, where: str):
     origin = typing.get_origin(typ)
     args = typing.get_args(typ)
     if dataclasses.is_dataclass(typ):
         if not isinstance(value, dict):
-            raise InputError(f"{where}: expected a table, got {value!r}")
+            raise InputError(f"{where}: expected a table, got {quote(value)}")
         return _build(typ, value, where)
     if origin is tuple:
         if not isinstance(value, (list, tuple)):
             value = [value]
         inner = args[0]
         return tuple(_coerce(v, inner, f"{where}[{i}]") for i, v in enumerate(value))
-    if origin in (typing.Union, getattr(__import__("types"), "UnionType", None)):
+    if origin in (typing.Union, types.UnionType):
         if value is None and type(None) in args:
             return None
+        errors = []
         for a in args:
             if a is type(None):
                 continue
             try:
                 return _coerce(value, a, where)
-            except InputError:
-                continue
-        raise InputError(f"{where}: cannot use {value!r}")
+            except InputError as exc:
+                errors.append(exc)
+        if len(errors) == 1:  # Optional[X]: X's own message
+            raise errors[0]
+        raise InputError(f"{where}: cannot use {quote(value)}")
     if typ is bool:
         if isinstance(value, str):
             if value.lower() in ("true", "1", "yes", "on"):
@@ -284,26 +324,72 @@ def _coerce(value, typ, where: str):
                 return False
         if isinstance(value, bool):
             return value
-        raise InputError(f"{where}: expected true/false, got {value!r}")
-    if typ in (int, float):
-        try:
-            out = typ(value)
-        except (TypeError, ValueError):
-            raise InputError(f"{where}: expected a number, got {value!r}") from None
-        if typ is int and isinstance(value, float) and value != int(value):
-            raise InputError(f"{where}: expected an integer, got {value!r}")
+        raise InputError(f"{where}: expected true/false, got {quote(value)}")
+    if typ is int:
+        return _as_int(value, where)
+    if typ is float:
+        if isinstance(value, str):
+            try:
+                value = float(value.strip())
+            except ValueError:
+                raise InputError(f"{where}: expected a number, got {quote(value)}") from None
+        if not _is_number(value):
+            raise InputError(f"{where}: expected a number, got {quote(value)}")
+        out = float(value)  # an int too large for a float raises OverflowError
+        if not math.isfinite(out):
+            raise InputError(f"{where} must be finite, got {quote(value)}")
         return out
     if typ is str:
-        return "none" if value is None else str(value)  # ``key=none`` of a string setting is the word
+        if value is None:
+            return "none"  # ``key=none`` of a string setting is the word
+        if not isinstance(value, (str, int, float)) or isinstance(value, bool):
+            raise InputError(f"{where}: expected a word, got {quote(value)}")
+        return str(value)
     return value
 
 
+def _as_int(value, where: str) -> int:
+    """An integer setting from an int, an integral finite float or a decimal string."""
+    if isinstance(value, str):
+        text = value.strip()
+        try:
+            value = int(text)
+        except ValueError:
+            try:
+                value = float(text)
+            except ValueError:
+                raise InputError(f"{where}: expected an integer, got {quote(text)}") from None
+    if not _is_number(value):
+        raise InputError(f"{where}: expected an integer, got {quote(value)}")
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            raise InputError(f"{where} must be a finite integer, got {quote(value)}")
+        if value != int(value):
+            raise InputError(f"{where}: expected an integer, got {quote(value)}")
+        value = int(value)
+    return int(value)
+
+
+def _check_keys(data: dict, where: str | None, prefix: str = "") -> None:
+    for key in data:
+        if not isinstance(key, str):
+            name = f"{prefix}{quote(key)}"
+            raise InputError(f"setting names must be words, got {name} ({type(key).__name__})", where)
+
+
+def _names(keys) -> str:
+    """Setting names for a message: at most 10, each cut to 40 characters."""
+    shown = [k if k.isidentifier() and len(k) <= 40 else quote(k, 40) for k in sorted(keys)[:10]]
+    return ", ".join(shown) + (", …" if len(keys) > 10 else "")
+
+
 def _build(cls, data: dict, where: str):
+    _check_keys(data, None, f"{where}." if where else "")
     hints = typing.get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = set(data) - names
     if unknown:
-        raise InputError(f"{where}: unknown setting(s) {', '.join(sorted(unknown))}; known: {', '.join(sorted(names))}")
+        raise InputError(f"{where}: unknown setting(s) {_names(unknown)}; known: {', '.join(sorted(names))}")
     base = cls()
     kwargs = {}
     for name, value in data.items():
@@ -313,20 +399,22 @@ def _build(cls, data: dict, where: str):
 
 def _merge(config: Config, data: dict, where: str | None) -> Config:
     """Replace the fields given in ``data`` (nested tables merge into the current sub-config)."""
+    _check_keys(data, where)
     hints = typing.get_type_hints(Config)
     names = {f.name for f in dataclasses.fields(Config)}
     unknown = set(data) - names
     if unknown:
-        raise InputError(f"unknown setting(s) {', '.join(sorted(unknown))}; known: {', '.join(sorted(names))}", where)
+        raise InputError(f"unknown setting(s) {_names(unknown)}; known: {', '.join(sorted(names))}", where)
     updates = {}
     for name, value in data.items():
         current = getattr(config, name)
         if dataclasses.is_dataclass(current) and isinstance(value, dict):
+            _check_keys(value, where, f"{name}.")
             sub_hints = typing.get_type_hints(type(current))
             sub_names = {f.name for f in dataclasses.fields(current)}
             bad = set(value) - sub_names
             if bad:
-                raise InputError(f"unknown setting(s) {name}.{', '.join(sorted(bad))}", where)
+                raise InputError(f"unknown setting(s) {name}.{_names(bad)}", where)
             updates[name] = dataclasses.replace(
                 current, **{k: _coerce(v, sub_hints[k], f"{name}.{k}") for k, v in value.items()}
             )
@@ -335,32 +423,94 @@ def _merge(config: Config, data: dict, where: str | None) -> Config:
     return dataclasses.replace(config, **updates)
 
 
+def _yaml_loader():
+    """A safe YAML loader that refuses aliases and caps the number of nodes."""
+    import yaml
+
+    class Loader(yaml.SafeLoader):
+        nodes = 0
+
+        def compose_node(self, parent, index):
+            if self.check_event(yaml.AliasEvent):
+                mark = self.peek_event().start_mark
+                raise InputError(f"YAML aliases (*name) are not allowed (line {mark.line + 1})")
+            self.nodes += 1
+            if self.nodes > MAX_YAML_NODES:
+                raise InputError(f"more than {MAX_YAML_NODES} YAML nodes")
+            return super().compose_node(parent, index)
+
+    return Loader
+
+
+def _read_file(path: str) -> dict:
+    try:
+        size = os.path.getsize(path)
+        if size > MAX_CONFIG_BYTES:
+            raise InputError(f"configuration file is too large ({size} bytes; at most {MAX_CONFIG_BYTES})", path)
+        if path.lower().endswith((".yaml", ".yml")):
+            with open(path, encoding="utf-8") as fh:
+                text = fh.read()
+            loader = _yaml_loader()(text)
+            try:
+                data = loader.get_single_data()
+            finally:
+                loader.dispose()
+            data = {} if data is None else data
+        elif path.lower().endswith(".toml"):
+            with open(path, "rb") as fh:
+                data = tomllib.load(fh)
+        else:
+            raise InputError("configuration files must be .toml, .yaml or .yml", path)
+    except InputError as exc:
+        if exc.path is None:
+            raise InputError(str(exc), path) from None
+        raise
+    except RecursionError:
+        raise InputError("cannot parse configuration (nested too deeply)", path) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read configuration ({_one_line(exc)})", path) from None
+    except Exception as exc:  # noqa: BLE001 -- parse errors of either library
+        if "yaml" in type(exc).__module__ and not isinstance(exc, (ValueError, TypeError)):
+            text = getattr(exc, "problem", None) or _one_line(exc)
+            mark = getattr(exc, "problem_mark", None)
+            where = f" at line {mark.line + 1}" if mark is not None else ""
+            raise InputError(f"cannot parse configuration ({_cut(str(text))}{where})", path) from None
+        raise InputError(f"cannot parse configuration ({_one_line(exc)})", path) from None
+    if not isinstance(data, dict):
+        raise InputError(f"configuration must be a mapping of settings, got {type(data).__name__}", path)
+    return data
+
+
+def _one_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return _cut(text.splitlines()[0] if text else type(exc).__name__)
+
+
+def _cut(text: str, limit: int = 2 * QUOTE_LIMIT) -> str:
+    text = " ".join(text.split())
+    return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
 def load_config(path: str | os.PathLike | None = None, preset_name: str | None = None) -> Config:
-    """Preset (``preset_name``, else the file's ``preset`` key, else ``fast``) updated by a TOML/YAML file."""
+    """Preset (``preset_name``, else the file's ``preset`` key, else ``fast``) updated by a TOML/YAML file.
+
+    Raises:
+        InputError: one line naming the file: unreadable, too large, not a mapping with string
+            keys, YAML aliases, unknown settings, or a value out of range (:func:`validate_config`).
+    """
     data: dict = {}
     if path is not None:
         path = os.fspath(path)
         if not os.path.exists(path):
             raise InputError("no such file", path)
-        try:
-            if path.lower().endswith((".yaml", ".yml")):
-                import yaml
-
-                with open(path) as fh:
-                    data = yaml.safe_load(fh) or {}
-            elif path.lower().endswith(".toml"):
-                with open(path, "rb") as fh:
-                    data = tomllib.load(fh)
-            else:
-                raise InputError("configuration files must be .toml, .yaml or .yml", path)
-        except InputError:
-            raise
-        except Exception as exc:  # parse errors of either library
-            raise InputError(f"cannot parse configuration ({str(exc).splitlines()[0]})", path) from None
-        if not isinstance(data, dict):
-            raise InputError("configuration must be a mapping of settings", path)
+        if not os.path.isfile(path):
+            raise InputError("not a file", path)
+        data = _read_file(path)
+        _check_keys(data, path)
     name = preset_name or data.get("preset") or "fast"
-    config = preset(str(name))
+    if not isinstance(name, str):
+        raise InputError(f"preset must be a word, got {quote(name)}", path)
+    config = preset(name)
     data = {k: v for k, v in data.items() if k != "preset"}
     try:
         return validate_config(_merge(config, data, path))
@@ -368,15 +518,19 @@ def load_config(path: str | os.PathLike | None = None, preset_name: str | None =
         if path and not str(exc).startswith(str(path)):
             raise InputError(str(exc), path) from None
         raise
+    except (OverflowError, RecursionError, TypeError, ValueError) as exc:  # a value no setting can hold
+        raise InputError(f"bad setting ({_one_line(exc)})", path) from None
 
 
 def apply_overrides(config: Config, overrides: list[str]) -> Config:
     """Apply ``section.key=value`` strings (e.g. ``flow.width=96``, ``seed=3``)."""
     for item in overrides:
         if "=" not in item:
-            raise InputError(f"override {item!r} must look like key=value (e.g. flow.width=96)")
+            raise InputError(f"override {quote(item)} must look like key=value (e.g. flow.width=96)")
         key, value = item.split("=", 1)
         parts = key.strip().split(".")
+        if not all(p.isidentifier() for p in parts):
+            raise InputError(f"override {quote(item)}: {quote(key.strip())} is not a setting name")
         parsed: typing.Any = value.strip()
         if parsed.startswith("[") and parsed.endswith("]"):
             parsed = [p.strip() for p in parsed[1:-1].split(",") if p.strip()]
@@ -385,56 +539,199 @@ def apply_overrides(config: Config, overrides: list[str]) -> Config:
         nested: typing.Any = parsed
         for p in reversed(parts[1:]):
             nested = {p: nested}
-        config = _merge(config, {parts[0]: nested}, None)
+        try:
+            config = _merge(config, {parts[0]: nested}, None)
+        except (OverflowError, TypeError, ValueError) as exc:
+            if isinstance(exc, InputError):
+                raise
+            raise InputError(f"override {quote(item)}: {_one_line(exc)}") from None
     return validate_config(config)
 
 
+# (setting, lowest, highest) of the integer settings; None: unbounded on that side
+_INT_RANGES = {
+    "seed": (0, SEED_LIMIT - 1),
+    "flow.width": (1, 1 << 16),
+    "flow.depth": (1, 1024),
+    "flow.n_times": (2, 100_000),
+    "flow.gso_width": (1, 1 << 16),
+    "flow.gso_depth": (0, 1024),
+    "sampling.bone_samples": (5, 10**7),
+    "sampling.tissue_samples": (0, 10**8),
+    "sampling.surface_edges": (0, 10**9),
+    "tissue.split_passes": (0, 100),
+    "compress": (10, 10**9),
+    "working_vertices": (100, 10**9),
+    "frames": (2, 1_000_000),
+}
+# messages kept word for word from earlier versions (users and tests match them)
+_INT_MESSAGES = {
+    "flow.width": "flow.width must be at least 1",
+    "flow.depth": "flow.depth must be at least 1",
+    "flow.n_times": "flow.n_times must be at least 2",
+    "sampling.bone_samples": "sampling.bone_samples must be at least 5",
+    "sampling.tissue_samples": "sampling.tissue_samples must be non-negative",
+    "sampling.surface_edges": "sampling.surface_edges must be non-negative (0 means all edges)",
+    "compress": "compress must be at least 10 (or none)",
+    "working_vertices": "working_vertices must be at least 100 (or none: train on the full-resolution source)",
+    "frames": "frames must be at least 2",
+}
+
+
+def _walk(obj, prefix: str = ""):
+    """(dotted name, value) of every leaf setting of a configuration (phases as ``phases[i].name``)."""
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        name = f"{prefix}{f.name}"
+        if dataclasses.is_dataclass(value):
+            yield from _walk(value, f"{name}.")
+        elif f.name == "phases" and isinstance(value, tuple):
+            for i, p in enumerate(value):
+                if dataclasses.is_dataclass(p):
+                    yield from _walk(p, f"{name}[{i}].")
+                else:
+                    yield f"{name}[{i}]", p
+        else:
+            yield name, value
+
+
+def _check_types(config: Config) -> None:
+    """Every leaf has its declared type; every number is finite (a Config built in Python is checked too)."""
+    for name, value in _walk(config):
+        if isinstance(value, tuple):
+            items = list(enumerate(value))
+        else:
+            items = [(None, value)]
+        for i, v in items:
+            where = name if i is None else f"{name}[{i}]"
+            if isinstance(v, float) and not math.isfinite(v):
+                raise InputError(f"{where} must be finite, got {quote(v)}")
+            if isinstance(v, (list, dict, set)):
+                raise InputError(f"{where}: expected a single value, got {quote(v)}")
+    for name, (lo, hi) in _INT_RANGES.items():
+        value = config
+        for part in name.split("."):
+            value = getattr(value, part)
+        if value is None and name in ("compress", "working_vertices"):
+            continue
+        if not (isinstance(value, int) and not isinstance(value, bool)):
+            raise InputError(f"{name} must be an integer, got {quote(value)}")
+        if value < lo:
+            raise InputError(_INT_MESSAGES.get(name, f"{name} must be at least {lo}") + f" (got {value})")
+        if hi is not None and value > hi:
+            raise InputError(f"{name} must be at most {hi} (got {quote(value)})")
+    if config.seed >= SEED_LIMIT or config.seed < 0:  # pragma: no cover - covered by _INT_RANGES
+        raise InputError("seed must be in [0, 2**32)")
+
+
+def _finite(x) -> bool:
+    return _is_number(x) and math.isfinite(x)
+
+
 def validate_config(config: Config) -> Config:
-    """Check ranges and choices; raise :class:`InputError` with the setting's name."""
+    """Check types, ranges and choices; raise :class:`InputError` with the setting's name.
+
+    Every number must be finite; integers integral and in range (``seed`` in [0, 2**32));
+    ``sampling.surface_edges`` ≥ 0, where 0 means all edges.
+    """
+    if not isinstance(config, Config):
+        raise InputError(f"expected a Config, got {type(config).__name__}")
+    _check_types(config)
+    flow, sampling, cons, weights, tissue = (
+        config.flow,
+        config.sampling,
+        config.constraints,
+        config.weights,
+        config.tissue,
+    )
     checks = [
-        (config.flow.width >= 1, "flow.width must be at least 1"),
-        (config.flow.depth >= 1, "flow.depth must be at least 1"),
-        (config.flow.n_times >= 2, "flow.n_times must be at least 2"),
-        (config.flow.skinning_width > 0, "flow.skinning_width must be positive"),
-        (config.flow.pose_lr_scale >= 0, "flow.pose_lr_scale must be non-negative"),
+        (_finite(flow.skinning_width) and flow.skinning_width > 0, "flow.skinning_width must be positive"),
+        (_finite(flow.pose_lr_scale) and flow.pose_lr_scale >= 0, "flow.pose_lr_scale must be non-negative"),
         (
-            not (config.flow.skinning and config.flow.div_free),
+            not (flow.skinning and flow.div_free),
             "flow.div_free needs flow.skinning=false (blended bone velocities are not divergence-free)",
         ),
-        (config.sampling.bone_samples >= 5, "sampling.bone_samples must be at least 5"),
-        (config.sampling.bone_radius > 0, "sampling.bone_radius must be positive"),
-        (config.sampling.tissue_samples >= 0, "sampling.tissue_samples must be non-negative"),
-        (config.sampling.tissue_delta > 0, "sampling.tissue_delta must be positive"),
-        (config.constraints.mode in ("mdmm", "soft"), "constraints.mode must be 'mdmm' or 'soft'"),
-        (config.constraints.eps > 0, "constraints.eps must be positive"),
-        (0 < config.constraints.margin <= 1, "constraints.margin must be in (0, 1]"),
-        (config.optimizer in ("adabelief", "vectoradam"), "optimizer must be 'adabelief' or 'vectoradam'"),
-        (config.interp in ("sclerp", "slerp"), "interp must be 'sclerp' or 'slerp'"),
-        (config.compress is None or config.compress >= 10, "compress must be at least 10 (or none)"),
+        (_finite(sampling.bone_radius) and sampling.bone_radius > 0, "sampling.bone_radius must be positive"),
+        (_finite(sampling.tissue_delta) and sampling.tissue_delta > 0, "sampling.tissue_delta must be positive"),
+        (cons.mode in ("mdmm", "soft"), "constraints.mode must be 'mdmm' or 'soft'"),
+        (_finite(cons.eps) and cons.eps > 0, "constraints.eps must be positive"),
+        (_finite(cons.margin) and 0 < cons.margin <= 1, "constraints.margin must be in (0, 1]"),
+        (_finite(cons.damping) and cons.damping >= 0, "constraints.damping must be non-negative"),
+        (_finite(cons.multiplier_lr) and cons.multiplier_lr >= 0, "constraints.multiplier_lr must be non-negative"),
+        (_finite(cons.weight) and cons.weight >= 0, "constraints.weight must be non-negative"),
+        (_finite(cons.soft_weight) and cons.soft_weight >= 0, "constraints.soft_weight must be non-negative"),
         (
-            config.working_vertices is None or config.working_vertices >= 100,
-            "working_vertices must be at least 100 (or none: train on the full-resolution source)",
+            _finite(cons.trajectory_weight) and cons.trajectory_weight >= 0,
+            "constraints.trajectory_weight must be non-negative",
         ),
-        (config.frames >= 2, "frames must be at least 2"),
-        (config.divergence_guard == 0 or config.divergence_guard > 1, "divergence_guard must be 0 (off) or above 1"),
+        (_finite(weights.surface) and weights.surface >= 0, "weights.surface must be non-negative"),
+        (_finite(weights.tissue) and weights.tissue >= 0, "weights.tissue must be non-negative"),
+        (
+            _finite(tissue.edge_length_fac) and 0 < tissue.edge_length_fac <= 1,
+            "tissue.edge_length_fac must be in (0, 1]",
+        ),
+        (_finite(tissue.epsilon) and tissue.epsilon > 0, "tissue.epsilon must be positive"),
+        (config.optimizer in ("adabelief", "vectoradam"), "optimizer must be 'adabelief' or 'vectoradam'"),
+        (_finite(config.clip_norm) and config.clip_norm > 0, "clip_norm must be positive"),
+        (_finite(config.weight_decay) and config.weight_decay >= 0, "weight_decay must be non-negative"),
+        (config.interp in ("sclerp", "slerp"), "interp must be 'sclerp' or 'slerp'"),
+        (
+            _finite(config.divergence_guard) and (config.divergence_guard == 0 or config.divergence_guard > 1),
+            "divergence_guard must be 0 (off) or above 1",
+        ),
         (len(config.phases) >= 1, "at least one phase is needed"),
         (config.placement in ("auto", "none"), "placement must be 'auto' or 'none'"),
+        (isinstance(config.pose_search, bool), "pose_search must be true or false"),
     ]
     for ok, message in checks:
         if not ok:
             raise InputError(message)
+    _check_jit_cache(config.jit_cache)
     for i, p in enumerate(config.phases):
+        if not isinstance(p, PhaseConfig):
+            raise InputError(f"phases[{i}] must be a phase table, got {quote(p)}")
         if p.metric not in METRICS:
-            raise InputError(f"phases[{i}].metric must be one of {', '.join(METRICS)} (got {p.metric!r})")
-        if p.steps < 0 or not p.sigmas or any(s <= 0 for s in p.sigmas) or p.sigma_normal <= 0:
+            raise InputError(f"phases[{i}].metric must be one of {', '.join(METRICS)} (got {quote(p.metric)})")
+        for key in ("steps", "warmup"):
+            v = getattr(p, key)
+            if not (isinstance(v, int) and not isinstance(v, bool)) or not 0 <= v <= 10**8:
+                raise InputError(f"phases[{i}].{key} must be an integer in [0, 10**8] (got {quote(v)})")
+        sigmas = p.sigmas if isinstance(p.sigmas, tuple) else ()
+        if (
+            not sigmas
+            or not all(_finite(s) and s > 0 for s in sigmas)
+            or not (_finite(p.sigma_normal) and p.sigma_normal > 0)
+        ):
             raise InputError(f"phases[{i}]: steps must be ≥ 0 and sigmas positive")
-        if p.lr < 0 or (p.lr_end is not None and p.lr_end < 0) or p.warmup < 0:
-            raise InputError(f"phases[{i}]: learning rates and warm-up must be non-negative")
-        if p.constraint_weight < 0:
+        if (
+            not (_finite(p.lr) and p.lr >= 0)
+            or (p.lr_end is not None and not (_finite(p.lr_end) and p.lr_end >= 0))
+            or p.warmup < 0
+        ):
+            raise InputError(f"phases[{i}]: learning rates and warm-up must be finite and non-negative")
+        if not (_finite(p.constraint_weight) and p.constraint_weight >= 0):
             raise InputError(f"phases[{i}].constraint_weight must be non-negative")
+        if not isinstance(p.trajectory, bool):
+            raise InputError(f"phases[{i}].trajectory must be true or false")
     if config.total_steps < 1:
         raise InputError("the phases have no steps")
     return config
+
+
+def _check_jit_cache(value) -> None:
+    if not isinstance(value, str) or not value.strip() or "\x00" in value or len(value) > 4096:
+        raise InputError(f"jit_cache must be auto, none or a folder (got {quote(value)})")
+    if value.lower() in ("auto", "none", "off", "0", "false", "no"):
+        return
+    folder = os.path.realpath(os.path.expanduser(value))
+    probe = folder
+    while not os.path.exists(probe):
+        parent = os.path.dirname(probe)
+        if parent == probe:
+            break
+        probe = parent
+    if os.path.exists(probe) and not os.path.isdir(probe):
+        raise InputError(f"jit_cache: {quote(value)} is not a folder ({quote(probe)} is a file)")
 
 
 def with_metric(config: Config, metric: str) -> Config:
@@ -442,7 +739,7 @@ def with_metric(config: Config, metric: str) -> Config:
     if metric == "varifold+normal-cycles":
         return config
     if metric not in METRICS:
-        raise InputError(f"--metric must be varifold, normal-cycles or varifold+normal-cycles (got {metric!r})")
+        raise InputError(f"--metric must be varifold, normal-cycles or varifold+normal-cycles (got {quote(metric)})")
     phases = tuple(dataclasses.replace(p, metric=metric) for p in config.phases)
     return dataclasses.replace(config, phases=phases)
 

@@ -43,18 +43,20 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import sys
 
+    from ncflow.cli.options import MiB, check_int, output_dir
     from ncflow.errors import InputError
     from ncflow.evaluate.benchmark import read_pairs_csv, run_benchmark
 
-    if args.jobs < 1:
-        raise InputError(f"--jobs must be at least 1 (got {args.jobs})")
+    check_int(args.jobs, "--jobs", 1, 1024)
     if args.ablations and (args.metric or args.interp or args.constraints):
         raise InputError("--ablations sets --metric, --interp and --constraints itself; leave them out")
     read_pairs_csv(args.pairs)  # one-line error on a bad csv before the configuration is built
     cfg = config_from_args(args)
+    # an existing --out is reused (resume); it is checked (and a symbolic link resolved) before any run
+    out = output_dir(args.out, reuse=True, need_bytes=64 * MiB)
     res = run_benchmark(
         args.pairs,
-        args.out,
+        out,
         cfg,
         ablations=args.ablations,
         jobs=args.jobs,

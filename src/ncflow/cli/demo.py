@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ncflow.cli.options import add_config_arguments, config_from_args
+from ncflow.cli.options import MiB, add_config_arguments, check_seed, config_from_args, output_dir, save_result
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -31,19 +31,17 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     import json
-    import os
     import time
-    from pathlib import Path
 
-    from ncflow.errors import InputError
     from ncflow.evaluate import auc, geodesic_errors
+    from ncflow.io.atomic import atomic_write_text, move_into_place, remove_tree, staging_dir
     from ncflow.match.matcher import Matcher
-    from ncflow.synthetic.pairs import make_pair, write_pair
+    from ncflow.synthetic.pairs import PAIR_FILES, make_pair, write_pair
 
-    out = Path(args.out)
-    if out.is_dir() and any(out.iterdir()) and not args.overwrite:
-        raise InputError("output directory exists and is not empty (use --overwrite)", out)
+    check_seed(args.pair_seed, "--pair-seed")
     cfg = config_from_args(args)
+    out = output_dir(args.out, overwrite=args.overwrite, result=True, need_bytes=64 * MiB)
+    _check_demo_extras(out)
     t0 = time.perf_counter()
     pair = make_pair(args.kind, seed=args.pair_seed)
     if not args.quiet:
@@ -72,19 +70,37 @@ def run(args: argparse.Namespace) -> int:
         "seconds": time.perf_counter() - t0,
     }
     result.metrics["demo"] = summary
-    result.save(out, overwrite=args.overwrite)
+    save_result(result, out, overwrite=args.overwrite, shown=args.out)
+    # the inputs: staged beside, then swapped in (only the files write_pair writes are replaced)
     inputs = out / "inputs"
-    if inputs.exists():
-        import shutil
-
-        shutil.rmtree(inputs)
-    write_pair(pair, inputs, "ply")
-    with open(os.path.join(out, "demo_summary.json"), "w") as fh:
-        json.dump(summary, fh, indent=2)
-    print(f"wrote {out} (inputs and ground truth in {inputs})")
+    staged = staging_dir(inputs)
+    try:
+        write_pair(pair, staged, "ply")
+        move_into_place(staged, inputs, lambda name: name in PAIR_FILES)
+    except BaseException:
+        remove_tree(staged)
+        raise
+    atomic_write_text(out / "demo_summary.json", json.dumps(summary, indent=2))
+    print(f"wrote {args.out} (inputs and ground truth in {inputs})")
     print(
         f"correspondence: mean geodesic error / sqrt(area) = {summary['geodesic_error_mean']:.4f}, "
         f"AUC(0.20) = {summary['geodesic_auc_0.20']:.3f}; largest bone violation g/eps = "
         f"{summary['max_bone_violation_ratio']:.2f}; run time {summary['seconds']:.1f} s"
     )
     return 0
+
+
+def _check_demo_extras(out) -> None:
+    """``inputs/`` and ``demo_summary.json`` of an earlier demo may be replaced; anything else there is refused."""
+    from ncflow.errors import InputError
+    from ncflow.synthetic.pairs import PAIR_FILES
+
+    inputs, summary = out / "inputs", out / "demo_summary.json"
+    if summary.is_symlink() or (summary.exists() and not summary.is_file()):
+        raise InputError("is not a file ncflow wrote; remove it first", summary)
+    if inputs.is_symlink() or (inputs.exists() and not inputs.is_dir()):
+        raise InputError("is not a folder ncflow wrote; remove it first", inputs)
+    if inputs.is_dir():
+        for entry in inputs.iterdir():
+            if entry.is_symlink() or not entry.is_file() or entry.name not in PAIR_FILES:
+                raise InputError("was not written by ncflow demo; move it away first", entry)

@@ -40,14 +40,17 @@ def run(args: argparse.Namespace) -> int:
 
     import jax
 
+    from ncflow.cli.options import check_int, check_number, check_seed
     from ncflow.errors import InputError
 
     if not args.sigma > 0:
         raise InputError(f"--sigma must be positive (got {args.sigma})")
     if not args.sigma_normal > 0:
         raise InputError(f"--sigma-normal must be positive (got {args.sigma_normal})")
-    if args.compress is not None and args.compress < 1:
-        raise InputError(f"--compress must be at least 1 (got {args.compress})")
+    check_number(args.sigma, "--sigma", positive=True)
+    check_number(args.sigma_normal, "--sigma-normal", positive=True)
+    check_int(args.compress, "--compress", 1, 10**9)
+    check_seed(args.seed)
     if not args.float32:
         jax.config.update("jax_enable_x64", True)
     import jax.numpy as jnp

@@ -59,8 +59,12 @@ def _gt_spec(values: list[str], fmt: str | None):
 def run(args: argparse.Namespace) -> int:
     import json
 
+    from ncflow.cli.options import MiB, output_dir
     from ncflow.evaluate.score import EVALUATION_FILE, evaluate_result, evaluation_text, write_evaluation
 
+    # RESULT_DIR receives evaluation.json and the plots: checked before the evaluation runs (it may
+    # be the current folder: evaluate adds files, it replaces nothing else)
+    output_dir(args.result_dir, must_exist=True, allow_cwd=True, need_bytes=8 * MiB, option="RESULT_DIR")
     ev = evaluate_result(
         args.result_dir,
         args.source,

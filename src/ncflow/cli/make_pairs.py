@@ -24,7 +24,12 @@ def register(sub: argparse._SubParsersAction) -> None:
             "unchanged; the motion is written to target_motion.json and listed in pairs.csv)."
         ),
     )
-    p.add_argument("out_dir", metavar="OUT_DIR", help="output folder (created)")
+    p.add_argument("out_dir", metavar="OUT_DIR", help="output folder (created; written as a whole when complete)")
+    p.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace the pairs (pair_XXX/, pairs.csv) of an existing non-empty OUT_DIR; other files are kept",
+    )
     p.add_argument(
         "--kind",
         choices=("humanoid", "hand", "quadruped"),
@@ -158,14 +163,20 @@ def _range(text: str | None, option: str):
 def run(args: argparse.Namespace) -> int:
     import numpy as np
 
+    from ncflow.cli.options import MiB, check_int, check_number, check_seed, output_dir
     from ncflow.errors import InputError
     from ncflow.synthetic.gltf import gltf_pair
     from ncflow.synthetic.mano import mano_pair
     from ncflow.synthetic.motion import target_motion
-    from ncflow.synthetic.pairs import make_pair, write_pairs
+    from ncflow.synthetic.pairs import check_pairs_dir, make_pair, write_pairs
 
     if args.mano and args.gltf:
         raise InputError("use either --mano or --gltf, not both")
+    check_int(args.n, "--n", 1, 100_000)
+    check_seed(args.seed, "--seed", count=args.n if not (args.mano or args.gltf) else 1)
+    check_int(args.large_joints, "--large-joints", 0, 1000)
+    check_number(args.resolution, "--resolution", hi=1000.0)
+    check_number(args.target_resolution, "--target-resolution", hi=1000.0)
     if args.target_resolution is not None and not args.target_resolution >= 8:
         raise InputError(f"--target-resolution must be at least 8 (got {args.target_resolution:g})")
     if (args.mano or args.gltf) and (args.large_joints != 1 or args.large_angle or args.articulation):
@@ -174,8 +185,11 @@ def run(args: argparse.Namespace) -> int:
         "target_rotation": _range(args.target_rotation, "--target-rotation"),
         "target_translation": _range(args.target_translation, "--target-translation"),
     }
-    # check the values before any pair is built
+    # check the values and the output folder before any pair is built
     target_motion(0, motion["target_rotation"], motion["target_translation"], np.zeros(3), 1.0)
+    n_pairs = args.n if not (args.mano or args.gltf) else 1
+    out = output_dir(args.out_dir, overwrite=args.overwrite, need_bytes=4 * MiB * n_pairs, option="OUT_DIR")
+    check_pairs_dir(out, args.overwrite)
     if args.mano:
         from ncflow.io.mano import load_mano
 
@@ -228,6 +242,6 @@ def run(args: argparse.Namespace) -> int:
             )
             for k in range(args.n)
         )
-    csv_path = write_pairs(pairs, args.out_dir, fmt=args.format, verbose=True)
+    csv_path = write_pairs(pairs, out, fmt=args.format, verbose=True, overwrite=args.overwrite)
     print(f"wrote {csv_path}")
     return 0

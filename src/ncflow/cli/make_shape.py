@@ -27,9 +27,13 @@ def run(args: argparse.Namespace) -> int:
 
     if not args.out.lower().endswith(MESH_SUFFIXES):
         raise InputError(f"output must end with one of {', '.join(MESH_SUFFIXES)}", args.out)
-    if args.resolution < 3:
-        raise InputError(f"--resolution must be at least 3 (got {args.resolution})")
+    from ncflow.cli.options import check_int, check_number, output_file
+
+    check_int(args.resolution, "--resolution", 3, 4096)
+    check_number(args.bend, "--bend", -360.0, 360.0)
+    out = output_file(args.out, option="output")  # not under a file, writable, before any work
     v, f = make_shape(args.kind, args.resolution, args.bend)
-    save_mesh(args.out, v, f)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    save_mesh(out, v, f)
     print(f"wrote {args.out}: {len(v)} vertices, {len(f)} faces")
     return 0

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ncflow.cli.options import add_config_arguments, config_from_args
+from ncflow.cli.options import add_config_arguments, config_from_args, output_dir, result_size_estimate, save_result
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -28,16 +28,18 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import os
-
-    from ncflow.errors import InputError
     from ncflow.match.matcher import Matcher
 
-    if os.path.isdir(args.out) and os.listdir(args.out) and not args.overwrite:
-        raise InputError("output directory exists and is not empty (use --overwrite)", args.out)
     cfg = config_from_args(args)
+    # --out checked (and a symbolic link resolved) before any work
+    out = output_dir(
+        args.out,
+        overwrite=args.overwrite,
+        result=True,
+        need_bytes=result_size_estimate(args.source, args.target, cfg.frames),
+    )
     result = Matcher(args.source, args.target, args.skeleton, cfg, quiet=args.quiet).run()
-    result.save(args.out, overwrite=args.overwrite)
+    save_result(result, out, overwrite=args.overwrite, shown=args.out)
     if not args.quiet:
         c = result.metrics["constraints"]
         t = result.metrics["timings"]

@@ -1,10 +1,174 @@
-"""Options shared by the commands that run the matcher (``match``, ``demo``, ``benchmark``): preset,
-configuration file, seed, steps, frames, ``--set`` overrides and the ablation switches.
+"""What the commands share: the matcher's options (``match``, ``demo``, ``benchmark``: preset,
+configuration file, seed, steps, frames, ``--set`` overrides and the ablation switches), the checks
+of integer and number options, the check of every output path before any work
+(:func:`output_dir`, :func:`output_file`) and the saving of a match result with a fallback copy
+when the disk fails (:func:`save_result`).
 """
 
 from __future__ import annotations
 
 import argparse
+import math
+import os
+from pathlib import Path
+
+SEED_LIMIT = 2**32
+MiB = 1 << 20
+
+
+def check_int(value, option: str, lo: int | None = None, hi: int | None = None) -> int | None:
+    """``value`` (None passes) as an int within [lo, hi]; else a one-line :class:`InputError` naming the option."""
+    from ncflow.errors import InputError
+
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise InputError(f"{option} must be an integer (got {str(value)[:40]!r})")
+    if lo is not None and value < lo:
+        raise InputError(f"{option} must be at least {lo} (got {value})")
+    if hi is not None and value > hi:
+        raise InputError(f"{option} must be at most {hi} (got {value})")
+    return value
+
+
+def check_seed(value, option: str = "--seed", count: int = 1) -> int | None:
+    """A seed (None passes): an integer with ``value + count - 1 < 2**32``."""
+    return check_int(value, option, 0, SEED_LIMIT - max(1, count))
+
+
+def check_number(value, option: str, lo: float | None = None, hi: float | None = None, positive: bool = False):
+    """``value`` (None passes) a finite number within [lo, hi] (above 0 with ``positive``)."""
+    from ncflow.errors import InputError
+
+    if value is None:
+        return None
+    if not math.isfinite(value):
+        raise InputError(f"{option} must be finite (got {value})")
+    if positive and not value > 0:
+        raise InputError(f"{option} must be positive (got {value:g})")
+    if lo is not None and value < lo:
+        raise InputError(f"{option} must be at least {lo:g} (got {value:g})")
+    if hi is not None and value > hi:
+        raise InputError(f"{option} must be at most {hi:g} (got {value:g})")
+    return value
+
+
+def output_dir(
+    path,
+    *,
+    overwrite: bool = False,
+    reuse: bool = False,
+    must_exist: bool = False,
+    allow_cwd: bool = False,
+    need_bytes: int = MiB,
+    result: bool = False,
+    option: str = "--out",
+) -> Path:
+    """Check a folder a command writes, before any work (:func:`ncflow.io.atomic.check_output_dir`).
+
+    ``result``: the folder receives the output contract of ``ncflow match``; with ``overwrite``
+    its contract names must hold what ncflow wrote there (:func:`ncflow.io.result.check_contract_entries`).
+    Returns the resolved folder (symbolic links followed), which the command writes to.
+    """
+    from ncflow.io.atomic import check_output_dir
+
+    real = check_output_dir(
+        path,
+        overwrite=overwrite,
+        reuse=reuse,
+        must_exist=must_exist,
+        allow_cwd=allow_cwd,
+        need_bytes=need_bytes,
+        option=option,
+    )
+    if result and real.is_dir():
+        from ncflow.io.result import check_contract_entries
+
+        check_contract_entries(real, path)
+    return real
+
+
+def output_file(path, *, need_bytes: int = MiB, option: str = "output") -> Path:
+    """Check a file a command writes, before any work (:func:`ncflow.io.atomic.check_output_file`)."""
+    from ncflow.io.atomic import check_output_file
+
+    return check_output_file(path, need_bytes=need_bytes, option=option)
+
+
+def result_size_estimate(source, target, frames: int) -> int:
+    """Rough bytes of a result folder: the frames and the animation are each about a source mesh per frame."""
+
+    def size(p) -> int:
+        try:
+            return os.path.getsize(p) if isinstance(p, (str, os.PathLike)) else 0
+        except OSError:
+            return 0
+
+    return 2 * (frames + 2) * size(source) + 2 * size(target) + MiB
+
+
+def save_result(result, out: Path, *, overwrite: bool, shown=None) -> Path:
+    """``result.save(out)``; when the disk fails, keep the trained result and say where it went.
+
+    The write is atomic (:func:`ncflow.io.result.write_result`): on an :class:`OSError` (a full
+    disk, a lost mount) nothing partial is left at ``out`` and an earlier result there is intact.
+    The result is then saved again under the system's temporary folder (the full output contract,
+    else an ``.npz`` of its arrays) and a one-line :class:`~ncflow.errors.ResultError` names that
+    copy, so the run need not be repeated.
+    """
+    from ncflow.errors import ResultError, first_line
+
+    shown = out if shown is None else shown
+    try:
+        return result.save(out, overwrite=overwrite)
+    except OSError as exc:
+        reason = exc.strerror or first_line(exc)
+        copy = save_fallback(result)
+        where = (
+            f"the result was saved to {copy} instead (move it into place)"
+            if copy is not None
+            else "no fallback copy could be written either"
+        )
+        raise ResultError(f"cannot write the result ({reason}); nothing there was changed; {where}", shown) from None
+
+
+def save_fallback(result) -> Path | None:
+    """Save a match result under the system's temporary folder; returns the path, or None.
+
+    First the whole output contract into ``TMP/ncflow-unsaved-XXXX/result``; if that fails too,
+    the arrays alone (deformed source, faces, frames, times, maps; no pickle) into
+    ``TMP/ncflow-unsaved-XXXX/result.npz``.
+    """
+    import tempfile
+
+    import numpy as np
+
+    from ncflow.errors import NcflowError
+    from ncflow.io.atomic import remove_tree
+
+    try:
+        base = Path(tempfile.mkdtemp(prefix="ncflow-unsaved-"))
+    except OSError:
+        return None
+    try:
+        return Path(result.save(base / "result", overwrite=False))
+    except (OSError, NcflowError):
+        remove_tree(base / "result")
+    try:
+        arrays = {
+            "deformed_source": np.asarray(result.deformed_source),
+            "source_faces": np.asarray(result.source.faces),
+            "frames": np.asarray(result.frames),
+            "frame_times": np.asarray(result.frame_times),
+        }
+        for key in ("map_face", "map_bary", "p2p_src_to_tgt", "p2p_tgt_to_src"):
+            if key in result.maps:
+                arrays[key] = np.asarray(result.maps[key])
+        np.savez(base / "result.npz", **arrays)
+        return base / "result.npz"
+    except Exception:  # noqa: BLE001 -- the last resort must not hide the original error
+        remove_tree(base)
+        return None
 
 
 def add_config_arguments(p: argparse.ArgumentParser) -> None:
@@ -41,8 +205,10 @@ def config_from_args(args: argparse.Namespace):
     import dataclasses
 
     from ncflow.config import apply_overrides, load_config, scale_steps, validate_config, with_metric
-    from ncflow.errors import InputError
 
+    check_seed(args.seed)
+    check_int(args.steps, "--steps", 1, 10**8)
+    check_int(args.frames, "--frames", 2, 10**6)
     cfg = load_config(args.config, args.preset)
     if args.seed is not None:
         cfg = dataclasses.replace(cfg, seed=args.seed)
@@ -60,7 +226,5 @@ def config_from_args(args: argparse.Namespace):
         cfg = dataclasses.replace(cfg, flow=dataclasses.replace(cfg.flow, div_free=True, skinning=False))
     cfg = apply_overrides(cfg, args.set)
     if args.steps is not None:
-        if args.steps < 1:
-            raise InputError(f"--steps must be at least 1 (got {args.steps})")
         cfg = scale_steps(cfg, args.steps)
     return validate_config(cfg)

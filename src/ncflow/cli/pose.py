@@ -49,12 +49,14 @@ def _write_all(writers: list[tuple]) -> None:
     import os
     from pathlib import Path
 
+    from ncflow.io.atomic import temporary_sibling
+
     done: list[tuple[Path, Path]] = []
     try:
         for path, write in writers:
             path = Path(path)
             path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = path.with_name(f".{path.stem}.ncflow-tmp-{os.getpid()}{path.suffix}")
+            tmp = temporary_sibling(path)
             done.append((tmp, path))
             write(tmp)
         for tmp, path in done:
@@ -92,11 +94,19 @@ def run(args: argparse.Namespace) -> int:
     if args.skeleton_out and not args.skeleton_out.lower().endswith((".tgf", ".json")):
         raise InputError("skeleton output must end with .tgf or .json", args.skeleton_out)
     time = _parse_time(args.time)
+    from ncflow.cli.options import MiB, check_int, output_file
+
+    check_int(args.skin, "--skin", 0, 10**6)
+    # the outputs checked (symbolic links resolved) before the file is read
+    out = output_file(args.out, need_bytes=8 * MiB, option="--out")
+    skeleton_out = output_file(args.skeleton_out, option="--skeleton-out") if args.skeleton_out else None
+    if skeleton_out is not None and skeleton_out == out:
+        raise InputError("--skeleton-out is the same file as --out", args.skeleton_out)
 
     rig = load_gltf_skin(args.file, args.skin)
     posed = rig.pose(time, args.animation, weld=not args.no_weld)
 
-    writers = [(args.out, lambda p: save_mesh(p, posed.vertices, posed.faces))]
+    writers = [(out, lambda p: save_mesh(p, posed.vertices, posed.faces))]
     dropped: list[str] = []
     if args.skeleton_out:
         from ncflow.skeleton import save_skeleton
@@ -105,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
         # so that every pose of the file gives the same joints
         skeleton, keep = gltf_skeleton(rig, time, args.animation, name=args.file)
         dropped = [n for j, n in enumerate(posed.names) if j not in set(keep.tolist())]
-        writers.append((args.skeleton_out, lambda p: save_skeleton(p, skeleton)))
+        writers.append((skeleton_out, lambda p: save_skeleton(p, skeleton)))
     _write_all(writers)
 
     what = "bind pose" if posed.time is None else f"clip {posed.animation or '(unnamed)'!r} at t={posed.time:g} s"

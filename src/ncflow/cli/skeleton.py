@@ -59,6 +59,10 @@ def run_info(args: argparse.Namespace) -> int:
 
     import numpy as np
 
+    from ncflow.cli.options import check_number
+
+    check_number(args.time, "--time")
+
     skel = _load(args, args.skeleton)
     warnings: list[str] = []
     if args.mesh:
@@ -111,12 +115,16 @@ def run_info(args: argparse.Namespace) -> int:
 def run_convert(args: argparse.Namespace) -> int:
     from pathlib import Path
 
+    from ncflow.cli.options import check_number, output_file
     from ncflow.errors import InputError
     from ncflow.io.skeletons import save_skeleton
 
     if Path(args.output).suffix.lower() not in (".tgf", ".json"):
         raise InputError("can only write skeletons as .tgf or .json", args.output)
+    check_number(args.time, "--time")
+    out = output_file(args.output, option="output")
     skel = _load(args, args.input)
-    save_skeleton(args.output, skel)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    save_skeleton(out, skel)
     print(f"wrote {args.output}: {skel.n_joints} joints, {skel.n_bones} bones")
     return 0

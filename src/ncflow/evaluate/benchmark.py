@@ -11,22 +11,36 @@ Layout of ``OUT``::
     runs/<method>/config.json          the method's configuration (a later run must match it)
     runs/<method>/<pair>/              the output contract of ncflow match, plus
     runs/<method>/<pair>/evaluation.json and eval_*.png   (ncflow evaluate)
+    runs/<method>/<pair>/run_manifest.json   what the run was made from (inputs' hashes, versions)
     report.json, report.md, curves_<dataset>.png
 
-Resuming: a run whose ``evaluation.json`` exists is skipped; a run whose result folder is complete
-(``metrics.json`` present; results are written atomically) but has no ``evaluation.json`` is only
-evaluated; anything else is matched and evaluated. So an interrupted benchmark continues where it
-stopped when the same command is run again. A run that fails (a training error, bad input found
-late) is recorded in the report and the others go on; running the command again retries it.
+Manifests: every run folder holds ``run_manifest.json`` (:func:`run_manifest`): the SHA-256 of
+its input files (source, target, skeleton, ground truth), the ground-truth format, the geodesic
+method, the ncflow version and the method's configuration, written after the match (``match``
+part) and again after the evaluation (``evaluation`` part).
+
+Resuming: a run is skipped only when its manifest matches the current one in full and its
+``evaluation.json`` exists; a run whose manifest matches in its ``match`` part and whose result is
+complete (``metrics.json`` present; results are written atomically) is only evaluated; anything
+else (no manifest, an input file changed, another ncflow version or configuration) is matched and
+evaluated again (its earlier evaluation removed first). So an interrupted benchmark continues
+where it stopped when the same command is run again, and never reuses a run of other inputs. A
+run that fails (a training error, bad input found late, a worker process that crashed) is
+recorded in the report and the others go on; running the command again retries it. The report
+is always written at the end (without the curve plots if drawing them fails).
 
 Methods: one (``ncflow``: the given configuration) or, with ``ablations=True``, the paper's Table 1
 rows as configuration variants of the given configuration (:data:`ABLATIONS`).
+
+Over 500 lines: the csv reader, the run manifests, the resumable runs and the crash-tolerant
+executor are one protocol over the run folders and are kept together.
 """
 
 from __future__ import annotations
 
 import csv
 import dataclasses
+import hashlib
 import json
 import os
 import re
@@ -38,7 +52,7 @@ from ncflow.config import Config, config_to_dict, with_metric
 from ncflow.errors import InputError
 from ncflow.evaluate.aggregate import run_row
 from ncflow.evaluate.report import write_benchmark_report
-from ncflow.evaluate.score import EVALUATION_FILE
+from ncflow.evaluate.score import EVALUATION_FILE, EVALUATION_PLOTS
 from ncflow.io.atomic import atomic_write_text
 from ncflow.io.ground_truth import GT_FORMATS
 
@@ -220,6 +234,9 @@ class RunTask:
     geodesic_method: str = "auto"
 
 
+MANIFEST_FILE = "run_manifest.json"
+
+
 def _evaluation_done(run_dir: Path) -> bool:
     path = run_dir / EVALUATION_FILE
     if not path.is_file():
@@ -228,6 +245,66 @@ def _evaluation_done(run_dir: Path) -> bool:
         return "headline" in json.loads(path.read_text())
     except (OSError, ValueError):
         return False
+
+
+def file_sha256(path: str | os.PathLike) -> str:
+    """SHA-256 of a file's bytes (hex)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def run_manifest(task: RunTask) -> dict:
+    """What a run is made from: ``{"match": {...}, "evaluation": {...}}``.
+
+    ``match``: SHA-256 of source, target and skeleton, the ncflow version and the method's
+    configuration. ``evaluation``: SHA-256 of the ground-truth file(s) (``identity`` has none),
+    the ground-truth format and the geodesic method (plus the match part's inputs, through the
+    run). Equal manifests mean a finished run can be reused.
+    """
+    from ncflow import __version__
+
+    p = task.pair
+    gts = [] if p.gt == "identity" else ([p.gt] if isinstance(p.gt, str) else list(p.gt))
+    return {
+        "format": 1,
+        "match": {
+            "ncflow_version": __version__,
+            "source_sha256": file_sha256(p.source),
+            "target_sha256": file_sha256(p.target),
+            "skeleton_sha256": file_sha256(p.skeleton),
+            "config": json.loads(json.dumps(config_to_dict(task.config))),
+        },
+        "evaluation": {
+            "ncflow_version": __version__,
+            "gt": "identity" if not gts else [file_sha256(g) for g in gts],
+            "gt_format": p.gt_format,
+            "geodesic_method": task.geodesic_method,
+        },
+    }
+
+
+def _read_manifest(run_dir: Path) -> dict | None:
+    try:
+        data = json.loads((run_dir / MANIFEST_FILE).read_text())
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def _write_manifest(run_dir: Path, manifest: dict, evaluated: bool) -> None:
+    record = dict(manifest, evaluation=manifest["evaluation"] if evaluated else None)
+    atomic_write_text(run_dir / MANIFEST_FILE, json.dumps(record, indent=1) + "\n")
+
+
+def _drop_evaluation(run_dir: Path) -> None:
+    """Remove the evaluation files ncflow wrote for an earlier result of this run (names it owns)."""
+    for name in (EVALUATION_FILE, *EVALUATION_PLOTS.values()):
+        path = run_dir / name
+        if path.is_file() and not path.is_symlink():
+            path.unlink()
 
 
 def _match(task: RunTask) -> None:
@@ -255,24 +332,31 @@ def run_task(task: RunTask) -> dict:
 
     Returns:
         ``{"method", "pair", "status", "seconds", "error"}`` with status ``"skipped"`` (already
-        evaluated), ``"evaluated"`` (result found, evaluation added), ``"matched"`` (matched and
-        evaluated) or ``"failed"`` (``error`` holds one line).
+        evaluated, same manifest), ``"evaluated"`` (result of the same inputs found, evaluation
+        added), ``"matched"`` (matched and evaluated) or ``"failed"`` (``error`` holds one line).
     """
     t0 = time.perf_counter()
     run_dir = Path(task.run_dir)
     out = {"method": task.method, "pair": task.pair.name, "status": "skipped", "seconds": 0.0, "error": None}
-    if _evaluation_done(run_dir):
-        return out
     try:
-        if (run_dir / "metrics.json").is_file():
+        manifest = run_manifest(task)
+        old = _read_manifest(run_dir) or {}
+        same_match = old.get("match") == manifest["match"] and (run_dir / "metrics.json").is_file()
+        if same_match and old.get("evaluation") == manifest["evaluation"] and _evaluation_done(run_dir):
+            return out
+        if same_match:
             out["status"] = "evaluated"
         else:
+            if run_dir.is_dir():
+                _drop_evaluation(run_dir)  # it scored an earlier result (or other inputs)
             _match(task)
+            _write_manifest(run_dir, manifest, evaluated=False)
             out["status"] = "matched"
         _evaluate(task)
+        _write_manifest(run_dir, manifest, evaluated=True)
     except Exception as exc:  # noqa: BLE001 -- a failed run is recorded, the benchmark goes on
         text = str(exc).splitlines()[0] if str(exc) else ""
-        out.update(status="failed", error=f"{type(exc).__name__}: {text}".rstrip(": "))
+        out.update(status="failed", error=f"{type(exc).__name__}: {text[:300]}".rstrip(": "))
     finally:
         # every pair compiles its own executables (other shapes); kept for the whole process they
         # exhausted the address-space mappings after ~14 pairs (LLVM "Unable to allocate section memory")
@@ -281,6 +365,10 @@ def run_task(task: RunTask) -> dict:
         jax.clear_caches()
     out["seconds"] = time.perf_counter() - t0
     return out
+
+
+def _crashed(task: RunTask, why: str) -> dict:
+    return {"method": task.method, "pair": task.pair.name, "status": "failed", "seconds": 0.0, "error": why}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -327,9 +415,19 @@ def _write_method_configs(out: Path, methods: list[Method]) -> None:
 
 
 def _execute(
-    tasks: list[RunTask], jobs: int, log: Callable[[str], None], describe: Callable[[dict], str]
+    tasks: list[RunTask],
+    jobs: int,
+    log: Callable[[str], None],
+    describe: Callable[[dict], str],
+    worker: Callable[[RunTask], dict] | None = None,
 ) -> list[dict]:
-    """Run the tasks in this process (jobs = 1) or in a spawn process pool; log each as it ends."""
+    """Run the tasks in this process (jobs = 1) or in a spawn process pool; log each as it ends.
+
+    A worker process that dies (a crash, the kernel's out-of-memory killer) breaks the pool: the
+    runs it took down are retried one at a time, each in a fresh process, and a run whose process
+    dies again is recorded as failed; the others go on.
+    """
+    worker = run_task if worker is None else worker
     outcomes: list[dict] = []
 
     def done(o: dict) -> None:
@@ -338,20 +436,40 @@ def _execute(
 
     if jobs <= 1:
         for t in tasks:
-            done(run_task(t))
+            try:
+                o = worker(t)
+            except Exception as exc:  # noqa: BLE001 -- run_task records failures itself; belt and braces
+                o = _crashed(t, f"{type(exc).__name__}: {str(exc)[:300]}")
+            done(o)
         return outcomes
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures.process import BrokenProcessPool
 
-    with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
-        futures = [pool.submit(run_task, t) for t in tasks]
+    context = multiprocessing.get_context("spawn")
+    lost: list[RunTask] = []
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=context) as pool:
+        futures = {pool.submit(worker, t): t for t in tasks}
         try:
             for f in as_completed(futures):
-                done(f.result())
+                try:
+                    done(f.result())
+                except BrokenProcessPool:
+                    lost.append(futures[f])
+                except Exception as exc:  # noqa: BLE001 -- e.g. a result that cannot be unpickled
+                    done(_crashed(futures[f], f"{type(exc).__name__}: {str(exc)[:300]}"))
         except BaseException:
             for f in futures:
                 f.cancel()
             raise
+    for t in lost:  # one at a time, each in its own process: a crash takes down only its own run
+        with ProcessPoolExecutor(max_workers=1, mp_context=context) as solo:
+            try:
+                done(solo.submit(worker, t).result())
+            except BrokenProcessPool:
+                done(_crashed(t, "the worker process crashed (killed, or out of memory)"))
+            except Exception as exc:  # noqa: BLE001
+                done(_crashed(t, f"{type(exc).__name__}: {str(exc)[:300]}"))
     return outcomes
 
 
@@ -379,12 +497,12 @@ def _collect_rows(tasks: list[RunTask], outcomes: dict) -> list[dict]:
             "dataset": t.pair.dataset,
             "dir": str(Path("runs") / t.method / t.pair.name),
         }
-        if _evaluation_done(run_dir):
+        o = outcomes.get((t.method, t.pair.name), {})
+        if o.get("status") != "failed" and _evaluation_done(run_dir):
             rows.append(
                 {**base, "status": "ok", "error": None, **run_row(json.loads((run_dir / EVALUATION_FILE).read_text()))}
             )
         else:
-            o = outcomes.get((t.method, t.pair.name), {})
             rows.append({**base, "status": "failed", "error": o.get("error") or "not run"})
     return rows
 
@@ -443,7 +561,12 @@ def run_benchmark(
 
     outcomes = _execute(tasks, jobs, log, describe)
     rows = _collect_rows(tasks, {(o["method"], o["pair"]): o for o in outcomes})
-    report = write_benchmark_report(
-        out, rows, [m.to_dict() for m in methods], pairs_csv=str(pairs_csv), n_pairs=len(pairs), plots=plots
-    )
+    kwargs = {"pairs_csv": str(pairs_csv), "n_pairs": len(pairs)}
+    try:
+        report = write_benchmark_report(out, rows, [m.to_dict() for m in methods], plots=plots, **kwargs)
+    except Exception as exc:  # noqa: BLE001 -- the report is always written: without the plots then
+        if not plots:
+            raise
+        log(f"could not draw the curve plots ({type(exc).__name__}: {str(exc)[:200]}); writing the report without")
+        report = write_benchmark_report(out, rows, [m.to_dict() for m in methods], plots=False, **kwargs)
     return BenchmarkResult(report, outcomes)

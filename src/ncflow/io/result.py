@@ -21,10 +21,16 @@ of the foot face with the largest barycentric weight).
 
 Writing is **atomic**: everything is written into a hidden temporary folder next to ``DIR`` and
 moved into place only when every file is complete; on any error the temporary folder is removed
-and ``DIR`` is left as it was (absent, or with its previous contents). An existing non-empty
-``DIR`` is refused unless ``overwrite=True``; then the contract entries are replaced as a whole
-(``frames/`` included, so stale frames of a longer earlier run disappear) and every other entry
-of ``DIR`` (the user's own files, plots, logs) is kept. Nothing non-finite is ever written: all
+and ``DIR`` is left as it was (absent, or with its previous contents). ``DIR`` is resolved first
+(a symbolic link to a folder is followed; the link itself is never moved or replaced). The final
+folder has the usual mode (``0o777`` minus the umask). An existing non-empty ``DIR`` is refused
+unless ``overwrite=True``; then only the contract entries are replaced, one rename each inside
+``DIR`` (``frames/`` as a whole, so stale frames of a longer earlier run disappear), and an error
+part-way puts the earlier ones back. Every other entry of ``DIR`` (the user's own files, plots,
+logs) stays where it is, untouched: ncflow never moves or deletes a file it did not write. A
+contract name that ncflow would not have written (a symbolic link, a folder in place of a file,
+``frames/`` holding other files than ``frame_XXXX.ply``) is refused before anything is written.
+Nothing non-finite is ever written: all
 arrays and the metrics (recursively) are checked first and a :class:`ResultError` names the first
 offending value. :func:`read_result` loads a folder back and checks it (sizes, index ranges, the
 two skeleton files together, optionally the animation), each problem one
@@ -39,9 +45,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import shutil
-import tempfile
-import uuid
 from pathlib import Path
 from typing import Any
 
@@ -60,7 +63,7 @@ from ncflow.io.arrays import (
     dumps_strict,
     json_safe,
 )
-from ncflow.io.atomic import atomic_path, atomic_write_text
+from ncflow.io.atomic import atomic_path, atomic_write_text, move_into_place, remove_tree, staging_dir
 from ncflow.io.files import read_json_object, read_npz_arrays
 from ncflow.io.gltf.writer import write_animation_glb
 from ncflow.io.ground_truth import read_index_file
@@ -240,8 +243,11 @@ def write_result(
             ``out_dir`` without ``overwrite``; raised before anything is written. Any error while
             writing leaves ``out_dir`` as it was and no temporary files behind.
     """
-    out_dir = Path(out_dir)
-    _check_target_dir(out_dir, overwrite)
+    shown = Path(out_dir)
+    out_dir = Path(os.path.realpath(os.path.expanduser(out_dir)))  # a symlinked folder: its target
+    if shown.is_symlink() and not shown.exists():
+        raise ResultError("is a broken symbolic link", shown)
+    _check_target_dir(out_dir, overwrite, shown)
     # --- validate everything first --------------------------------------------------------
     deformed = as_frames(np.asarray(deformed_source)[None], "deformed source")[0]
     nv = deformed.shape[0]
@@ -289,7 +295,7 @@ def write_result(
             joint_names = skeleton_target.names
     # --- write into a temporary folder, then move it into place ---------------------------
     out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.tmp-", dir=out_dir.parent))
+    tmp = staging_dir(out_dir)  # os.mkdir: the umask's mode, unlike mkdtemp's 0700
     try:
         save_mesh(tmp / "deformed_source.ply", deformed, faces)
         _write_indices(tmp / "p2p_src_to_tgt.txt", p2p_st)
@@ -302,11 +308,11 @@ def write_result(
             save_skeleton(tmp / "skeleton_target.tgf", skeleton_target)
             write_skeleton_frames_json(tmp / "skeleton_frames.json", sk_frames, sk_parents, joint_names, times)
         atomic_write_text(tmp / "metrics.json", metrics_text)
-        _move_into_place(tmp, out_dir, overwrite)
+        _move_into_place(tmp, out_dir, overwrite, shown)
     except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+        remove_tree(tmp)
         raise
-    return out_dir
+    return shown
 
 
 def _write_indices(path: Path, values: np.ndarray) -> None:
@@ -314,37 +320,61 @@ def _write_indices(path: Path, values: np.ndarray) -> None:
     atomic_write_text(path, "".join(f"{int(v)}\n" for v in values))
 
 
-def _check_target_dir(out_dir: Path, overwrite: bool) -> None:
+def _check_target_dir(out_dir: Path, overwrite: bool, shown: Path | None = None) -> None:
+    """Refuse a file, an occupied folder without ``overwrite``, and contract names ncflow did not write."""
+    shown = out_dir if shown is None else shown
     if out_dir.exists() and not out_dir.is_dir():
-        raise ResultError("exists and is not a folder", out_dir)
-    if out_dir.is_dir() and any(out_dir.iterdir()) and not overwrite:
+        raise ResultError("exists and is not a folder", shown)
+    probe = out_dir.parent
+    while not probe.exists() and probe.parent != probe:
+        probe = probe.parent
+    if not probe.is_dir():
+        raise ResultError(f"is under {probe}, which is not a folder", shown)
+    if not out_dir.is_dir():
+        return
+    if any(out_dir.iterdir()) and not overwrite:
         raise ResultError(
-            "output folder exists and is not empty (pass overwrite=True / --overwrite to replace the result)", out_dir
+            "output folder exists and is not empty (pass overwrite=True / --overwrite to replace the result)", shown
         )
+    check_contract_entries(out_dir, shown)
 
 
-def _move_into_place(tmp: Path, out_dir: Path, overwrite: bool) -> None:
-    """Rename the finished temporary folder to ``out_dir`` (see the module docstring)."""
-    _check_target_dir(out_dir, overwrite)
-    if not out_dir.exists():
-        os.rename(tmp, out_dir)
-        return
-    if not any(out_dir.iterdir()):
-        out_dir.rmdir()
-        os.rename(tmp, out_dir)
-        return
-    # overwrite: swap the folders, then carry the user's non-contract entries over
-    backup = out_dir.parent / f".{out_dir.name}.old-{uuid.uuid4().hex[:8]}"
-    os.rename(out_dir, backup)
-    try:
-        os.rename(tmp, out_dir)
-    except BaseException:
-        os.rename(backup, out_dir)
-        raise
-    for entry in backup.iterdir():
-        if entry.name not in CONTRACT_FILES:
-            os.rename(entry, out_dir / entry.name)
-    shutil.rmtree(backup, ignore_errors=True)
+def check_contract_entries(out_dir: str | os.PathLike, shown: str | os.PathLike | None = None) -> None:
+    """Refuse a folder whose contract names hold something ncflow would not have written there.
+
+    A symbolic link, a folder where the contract has a file (or a file for ``frames/``), or
+    ``frames/`` holding anything but ``frame_XXXX.ply`` files: replacing it would delete the
+    user's data, so :func:`write_result` refuses it before anything is written.
+
+    Raises:
+        ResultError: one line naming the entry.
+    """
+    out_dir = Path(out_dir)
+    for name in CONTRACT_FILES:
+        entry = out_dir / name
+        if entry.is_symlink():
+            raise ResultError("is a symbolic link; ncflow replaces only files it wrote (remove it first)", entry)
+        if not entry.exists():
+            continue
+        if name == "frames":
+            if not entry.is_dir():
+                raise ResultError("is not a folder; ncflow replaces only files it wrote (remove it first)", entry)
+            for sub in entry.iterdir():
+                if sub.is_symlink() or not sub.is_file() or not _FRAME_RE.match(sub.name):
+                    raise ResultError(
+                        "was not written by ncflow (frames/ holds only frame_XXXX.ply); move it away first", sub
+                    )
+        elif not entry.is_file():
+            raise ResultError("is not a file; ncflow replaces only files it wrote (remove it first)", entry)
+
+
+def _move_into_place(tmp: Path, out_dir: Path, overwrite: bool, shown: Path | None = None) -> None:
+    """Move the finished temporary folder to ``out_dir``: only contract entries are replaced or removed.
+
+    See the module docstring and :func:`ncflow.io.atomic.move_into_place`.
+    """
+    _check_target_dir(out_dir, overwrite, shown)
+    move_into_place(tmp, out_dir, lambda name: name in CONTRACT_FILES)
 
 
 # ----------------------------------------------------------------------------------------------

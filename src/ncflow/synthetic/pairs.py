@@ -42,8 +42,10 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import io
 import json
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -54,7 +56,14 @@ from ncflow.geometry.barycentric import surface_points
 from ncflow.geometry.closest import _project
 from ncflow.geometry.mesh import Mesh
 from ncflow.geometry.remesh import retriangulate_mesh
-from ncflow.io.atomic import atomic_write_text
+from ncflow.io.atomic import (
+    atomic_path,
+    atomic_write_text,
+    check_output_dir,
+    move_into_place,
+    remove_tree,
+    staging_dir,
+)
 from ncflow.io.ground_truth import GroundTruth, ground_truth_from_vertex_map, save_ground_truth
 from ncflow.io.meshes import save_mesh
 from ncflow.skeleton import Skeleton, save_skeleton
@@ -366,6 +375,50 @@ def write_pair(pair: Pair, directory: str | os.PathLike, fmt: str = "ply") -> di
     return files
 
 
+#: files :func:`write_pair` may write into a pair folder
+_PAIR_NAMES = "source.ply source.obj target.ply target.obj source_skeleton.tgf target_skeleton.tgf gt.npz"
+PAIR_FILES = frozenset(_PAIR_NAMES.split() + ["target_motion.json"])
+_PAIR_DIR_RE = re.compile(r"^pair_\d{3,}$")
+
+
+def _owned_by_write_pairs(csv_name: str):
+    return lambda name: name == csv_name or bool(_PAIR_DIR_RE.match(name))
+
+
+def check_pairs_dir(out_dir: str | os.PathLike, overwrite: bool = False, csv_name: str = "pairs.csv") -> Path:
+    """Check the folder :func:`write_pairs` will write (before any pair is built); return it resolved.
+
+    An existing non-empty folder is refused unless ``overwrite``; then its ``pair_XXX`` folders
+    and ``csv_name`` are replaced as a set and must hold only what :func:`write_pairs` writes
+    (anything else: refused, never deleted). Other entries are left untouched.
+
+    Raises:
+        InputError: one line naming the folder or the offending entry.
+    """
+    shown = Path(out_dir)
+    out = check_output_dir(out_dir, overwrite=True, allow_cwd=True, option="output folder")
+    if not out.is_dir() or not any(out.iterdir()):
+        return out
+    if not overwrite:
+        raise InputError("output folder exists and is not empty (use --overwrite to replace its pairs)", shown)
+    owned = _owned_by_write_pairs(csv_name)
+    for entry in out.iterdir():
+        if not owned(entry.name):
+            continue
+        if entry.is_symlink():
+            raise InputError("is a symbolic link; ncflow replaces only files it wrote (remove it first)", entry)
+        if entry.name == csv_name:
+            if not entry.is_file():
+                raise InputError("is not a file; ncflow replaces only files it wrote (remove it first)", entry)
+            continue
+        if not entry.is_dir():
+            raise InputError("is not a folder; ncflow replaces only pair folders it wrote (remove it first)", entry)
+        for sub in entry.iterdir():
+            if sub.is_symlink() or not sub.is_file() or sub.name not in PAIR_FILES:
+                raise InputError("was not written by ncflow make-pairs; move it away first", sub)
+    return out
+
+
 def write_pairs(
     pairs,
     out_dir: str | os.PathLike,
@@ -373,52 +426,73 @@ def write_pairs(
     csv_name: str = "pairs.csv",
     start: int = 0,
     verbose: bool = False,
+    overwrite: bool = False,
 ) -> Path:
     """Write pairs to ``out_dir/pair_XXX/`` (see :func:`write_pair`) and list them in ``out_dir/pairs.csv``.
 
     The csv has columns ``name, source, target, skeleton, gt, gt_format, dataset`` (paths relative
     to the csv; ``gt_format`` is ``npz``), plus ``target_rotation_deg`` and ``target_motion`` (the
     ``target_motion.json`` file, empty for a pair without one) when some target was turned and
-    moved. ``pairs`` may be any iterable (pairs are written as they come).
+    moved. ``pairs`` may be any iterable (pairs are built as they come).
+
+    The whole set is written **atomically**: into a hidden folder beside ``out_dir``, moved into
+    place when the csv is complete (:func:`ncflow.io.atomic.move_into_place`), so an interrupted
+    run never leaves new pairs beside an old csv. An existing non-empty ``out_dir`` is refused
+    unless ``overwrite``; then its ``pair_XXX`` folders and csv are replaced as a set (stale pairs
+    of a longer earlier run removed) and its other entries kept (:func:`check_pairs_dir`).
 
     Returns:
         the csv path.
     """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    rows = []
-    for k, pair in enumerate(pairs, start=start):
-        sub = f"pair_{k:03d}"
-        files = write_pair(pair, out / sub, fmt)
-        rows.append(
-            {
-                "name": pair.name,
-                "source": f"{sub}/{files['source']}",
-                "target": f"{sub}/{files['target']}",
-                "skeleton": f"{sub}/{files['skeleton']}",
-                "gt": f"{sub}/{files['gt']}",
-                "gt_format": "npz",
-                "dataset": pair.dataset,
-            }
-        )
-        if "target_motion" in files:
-            rows[-1]["target_rotation_deg"] = f"{pair.info['target_motion']['angle_deg']:.6g}"
-            rows[-1]["target_motion"] = f"{sub}/{files['target_motion']}"
-        if verbose:
-            motion = pair.info.get("target_motion")
-            moved = ""
-            if motion is not None:
-                moved = f", target turned {motion['angle_deg']:.4g}° and moved {np.linalg.norm(motion['shift']):.4g}"
-            print(
-                f"{sub}: {pair.name} ({pair.dataset}) source {pair.source.n_vertices} vertices, "
-                f"target {pair.target.n_vertices} vertices, {pair.skeleton.n_bones} bones{moved}",
-                flush=True,
+    shown = Path(out_dir)
+    out = check_pairs_dir(out_dir, overwrite, csv_name)
+    if os.sep in csv_name or not csv_name or csv_name.startswith("."):
+        raise InputError(f"csv_name must be a plain file name, got {csv_name!r}")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = staging_dir(out)
+    try:
+        rows = []
+        for k, pair in enumerate(pairs, start=start):
+            sub = f"pair_{k:03d}"
+            files = write_pair(pair, tmp / sub, fmt)
+            rows.append(
+                {
+                    "name": pair.name,
+                    "source": f"{sub}/{files['source']}",
+                    "target": f"{sub}/{files['target']}",
+                    "skeleton": f"{sub}/{files['skeleton']}",
+                    "gt": f"{sub}/{files['gt']}",
+                    "gt_format": "npz",
+                    "dataset": pair.dataset,
+                }
             )
-    path = out / csv_name
-    with open(path, "w", newline="") as fh:
-        moved = any("target_motion" in r for r in rows)
-        columns = PAIRS_CSV_COLUMNS + (MOTION_CSV_COLUMNS if moved else ())
-        writer = csv.DictWriter(fh, fieldnames=list(columns), restval="")
+            if "target_motion" in files:
+                rows[-1]["target_rotation_deg"] = f"{pair.info['target_motion']['angle_deg']:.6g}"
+                rows[-1]["target_motion"] = f"{sub}/{files['target_motion']}"
+            if verbose:
+                motion = pair.info.get("target_motion")
+                moved = ""
+                if motion is not None:
+                    moved = (
+                        f", target turned {motion['angle_deg']:.4g}° and moved {np.linalg.norm(motion['shift']):.4g}"
+                    )
+                print(
+                    f"{sub}: {pair.name} ({pair.dataset}) source {pair.source.n_vertices} vertices, "
+                    f"target {pair.target.n_vertices} vertices, {pair.skeleton.n_bones} bones{moved}",
+                    flush=True,
+                )
+        text = io.StringIO(newline="")
+        moved_any = any("target_motion" in r for r in rows)
+        columns = PAIRS_CSV_COLUMNS + (MOTION_CSV_COLUMNS if moved_any else ())
+        writer = csv.DictWriter(text, fieldnames=list(columns), restval="")
         writer.writeheader()
         writer.writerows(rows)
-    return path
+        with atomic_path(tmp / csv_name) as part:
+            with open(part, "w", newline="") as fh:
+                fh.write(text.getvalue())
+        check_pairs_dir(out_dir, overwrite, csv_name)  # again: the folder may have changed meanwhile
+        move_into_place(tmp, out, _owned_by_write_pairs(csv_name))
+    except BaseException:
+        remove_tree(tmp)
+        raise
+    return shown / csv_name
