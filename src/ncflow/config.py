@@ -165,12 +165,16 @@ class WeightsConfig:
 
 @dataclass(frozen=True)
 class TissueConfig:
-    """Tetrahedralisation of the source (fTetWild) and its refinement."""
+    """Tetrahedralisation of the source (fTetWild) and its refinement; ``file``: reuse the exact
+    tissue of an earlier run (its cache entry, named in that run's ``metrics.json`` under
+    ``tissue.cache_file``) instead of tetrahedralising.
+    """
 
     edge_length_fac: float = 0.1
     epsilon: float = 5e-3
     split_passes: int = 2
     cache: bool = True
+    file: str | None = None
 
 
 @dataclass(frozen=True)

@@ -56,6 +56,7 @@ from ncflow.cache import cache_root
 from ncflow.errors import InputError
 from ncflow.geometry.topology import close_boundary
 from ncflow.io.atomic import atomic_path
+from ncflow.io.files import read_npz_arrays
 
 DEFAULT_EDGE_LENGTH_FAC = 0.1
 """Ideal tet edge length relative to the bounding-box diagonal (the release uses 0.05; coarser here)."""
@@ -354,46 +355,100 @@ def sample_tissue(key: PRNGKeyArray, centroids: Float[Array, "K 3"], n: int) -> 
     return centroids[idx]
 
 
+def _tool_versions() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = []
+    for name in ("ncflow", "pytetwild"):
+        try:
+            out.append(f"{name}={version(name)}")
+        except PackageNotFoundError:
+            out.append(f"{name}=?")
+    return ",".join(out)
+
+
+def centroids_digest(centroids: np.ndarray) -> str:
+    """SHA-256 of the centroids (float64, C order): the identity of a tissue, recorded in ``metrics.json``."""
+    return hashlib.sha256(np.ascontiguousarray(centroids, np.float64).tobytes()).hexdigest()
+
+
+def load_tissue_file(path, vertices: np.ndarray) -> np.ndarray:
+    """Centroids (K, 3) from a tissue file (an ``.npz`` with ``centroids``, e.g. a cache entry named
+    in an earlier run's ``metrics.json``), checked: finite, (K, 3), inside the source's bounding box
+    (normalised coordinates) up to 5 % of its size.
+    """
+    c = np.asarray(read_npz_arrays(path, ("centroids",), ())["centroids"], np.float64)
+    if c.ndim != 2 or c.shape[1] != 3 or c.shape[0] < 1:
+        raise InputError(f"tissue file: centroids must be (K, 3), got {c.shape}", path)
+    if not np.all(np.isfinite(c)):
+        raise InputError("tissue file: centroids are not all finite", path)
+    lo, hi = vertices.min(0), vertices.max(0)
+    pad = 0.05 * float(np.max(hi - lo))
+    if np.any(c < lo - pad) or np.any(c > hi + pad):
+        raise InputError("tissue file: centroids lie outside the source (made for another source?)", path)
+    return c
+
+
 def tissue_centroids(
     vertices: Float[np.ndarray, "V 3"], faces: Int[np.ndarray, "F 3"], settings
 ) -> tuple[np.ndarray, dict]:
-    """Tet centroids of the (normalised) source; cached per surface and settings.
+    """Tet centroids of the (normalised) source; cached per surface, settings and tool versions.
 
     ``settings`` is a :class:`ncflow.config.TissueConfig` (``edge_length_fac``, ``epsilon``,
     ``split_passes``, ``cache``).
 
     fTetWild is not deterministic (the same surface gives slightly different tets from run to run),
     so the first tetrahedralisation of a surface is cached (``$NCFLOW_CACHE_DIR``, default
-    ``~/.cache/ncflow``) and reused: repeated runs on one machine are then reproducible.
+    ``~/.cache/ncflow``) and reused: repeated runs on one machine are then reproducible. Concurrent
+    runs on one source take a lock, so one of them tetrahedralises and the others read its entry.
+    The returned info holds the entry's path (``cache_file``, reusable with ``ncflow match
+    --tissue``) and the centroids' SHA-256 (``sha256``).
     """
     tc = settings
     h = hashlib.sha256()
     h.update(np.ascontiguousarray(vertices, np.float64).tobytes())
     h.update(np.ascontiguousarray(faces, np.int64).tobytes())
     h.update(repr((tc.edge_length_fac, tc.epsilon, tc.split_passes)).encode())
+    h.update(_tool_versions().encode())
     path = cache_root() / "tissue" / f"{h.hexdigest()[:32]}.npz"
-    info = {"cached": False}
-    if tc.cache and path.exists():
+    if not tc.cache:
+        return _tetrahedralise(vertices, faces, tc, {"cached": False})
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        lock = open(path.with_suffix(".lock"), "a")
+    except OSError:  # an unwritable cache folder: compute without it
+        return _tetrahedralise(vertices, faces, tc, {"cached": False})
+    with lock:
+        import fcntl
+
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if path.exists():
+            try:
+                c = np.asarray(read_npz_arrays(path, ("centroids",), ())["centroids"])
+                info = {"cached": True, "n_centroids": int(c.shape[0]), "seconds": 0.0}
+                return c, {**info, "cache_file": str(path), "sha256": centroids_digest(c)}
+            except Exception:  # a broken cache entry is recomputed
+                pass
+        c, info = _tetrahedralise(vertices, faces, tc, {"cached": False})
         try:
-            data = np.load(path)
-            info.update(cached=True, n_centroids=int(data["centroids"].shape[0]), seconds=0.0)
-            return np.asarray(data["centroids"]), info
-        except Exception:  # a broken cache entry is recomputed
+            with atomic_path(path) as tmp:  # a reader without the lock never sees a half-written entry
+                np.savez(tmp, centroids=c)
+            info["cache_file"] = str(path)
+        except OSError:
             pass
+        return c, info
+
+
+def _tetrahedralise(vertices, faces, tc, info: dict) -> tuple[np.ndarray, dict]:
     t0 = time.perf_counter()
     tissue = soft_tissue(
         vertices, faces, edge_length_fac=tc.edge_length_fac, epsilon=tc.epsilon, passes=tc.split_passes
     )
+    c = np.asarray(tissue.centroids)
     info.update(
         n_tets_initial=int(tissue.n_tets_initial),
-        n_centroids=int(tissue.centroids.shape[0]),
+        n_centroids=int(c.shape[0]),
         seconds=time.perf_counter() - t0,
+        sha256=centroids_digest(c),
     )
-    if tc.cache:
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            with atomic_path(path) as tmp:  # concurrent runs never read a half-written entry
-                np.savez(tmp, centroids=tissue.centroids)
-        except OSError:
-            pass
-    return np.asarray(tissue.centroids), info
+    return c, info

@@ -192,6 +192,11 @@ def add_config_arguments(p: argparse.ArgumentParser) -> None:
         help="divergence-free (volume-preserving) flow field (turns flow.skinning off)",
     )
     p.add_argument(
+        "--tissue",
+        metavar="FILE",
+        help="reuse the exact soft tissue of an earlier run (the .npz its metrics.json names under tissue.cache_file)",
+    )
+    p.add_argument(
         "--set",
         action="append",
         default=[],
@@ -224,6 +229,8 @@ def config_from_args(args: argparse.Namespace):
         cfg = dataclasses.replace(cfg, optimizer=args.optimizer)
     if args.div_free:
         cfg = dataclasses.replace(cfg, flow=dataclasses.replace(cfg.flow, div_free=True, skinning=False))
+    if getattr(args, "tissue", None):
+        cfg = dataclasses.replace(cfg, tissue=dataclasses.replace(cfg.tissue, file=str(args.tissue)))
     cfg = apply_overrides(cfg, args.set)
     if args.steps is not None:
         cfg = scale_steps(cfg, args.steps)

@@ -5,7 +5,8 @@ single root. Bones are the pairs (parent(j), j) for every non-root joint j. Insi
 joints are stored in a topological order (root first, every parent before its children; joints
 given in such an order keep it) and :attr:`Skeleton.file_index` maps back to the order of the
 file. :func:`merge_zero_length_bones` drops joints stacked on their parent, as rigs often have
-them.
+them. Validation takes time linear in the number of joints (sorting J log J), which is at most
+:data:`MAX_JOINTS`.
 
 The type is pure NumPy data, so it lives in ``geometry``, where the readers of
 :mod:`ncflow.io.skeletons` (TGF, JSON, glTF) can build it; :mod:`ncflow.skeleton` re-exports it
@@ -23,6 +24,9 @@ import numpy.typing as npt
 from jaxtyping import Float, Int
 
 from ncflow.errors import InputError
+
+MAX_JOINTS = 10_000
+"""Most joints a skeleton may have (characters have tens to a few hundred)."""
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -176,9 +180,11 @@ class Skeleton:
 
 
 def _default_labels(n: int, names=None) -> list[str]:
+    """``joint i`` or ``joint i ('name')`` for messages (a name longer than 60 characters cut short)."""
     if names is None:
         return [f"joint {i}" for i in range(n)]
-    return [f"joint {i} ({names[i]!r})" for i in range(n)]
+    cut = [s[:57] + "..." if isinstance(s, str) and len(s) > 60 else s for s in names[:n]]
+    return [f"joint {i} ({cut[i]!r})" for i in range(n)]
 
 
 def _topological_order(parents: np.ndarray) -> np.ndarray:
@@ -199,6 +205,19 @@ def _topological_order(parents: np.ndarray) -> np.ndarray:
     return np.asarray(order, dtype=np.int64)
 
 
+def _breadth_first(parents: np.ndarray) -> list[int]:
+    """Joints reachable from the roots (parent < 0), parents before children; O(J) (joints on a cycle are left out)."""
+    parents = [int(p) for p in parents]
+    children: list[list[int]] = [[] for _ in parents]
+    for j, p in enumerate(parents):
+        if p >= 0:
+            children[p].append(j)
+    order = [j for j, p in enumerate(parents) if p < 0]
+    for j in order:  # the list grows while it is walked: a queue
+        order.extend(children[j])
+    return order
+
+
 def validate_skeleton(
     positions: npt.ArrayLike,
     parents: npt.ArrayLike,
@@ -207,9 +226,9 @@ def validate_skeleton(
 ) -> None:
     """Check a joint tree given in any order; raise :class:`InputError` (one line) otherwise.
 
-    Checks: (J, 3) finite positions with J ≥ 2; (J,) integer parents in [−1, J); exactly one
-    root; no cycles (every joint reaches the root); no zero-length bone (shorter than 1e-9 of the
-    skeleton's bounding-box diagonal).
+    Checks: (J, 3) finite positions with 2 ≤ J ≤ :data:`MAX_JOINTS`; (J,) integer parents in
+    [−1, J); exactly one root; no cycles (every joint reaches the root); no zero-length bone
+    (shorter than 1e-9 of the skeleton's bounding-box diagonal). Linear in J.
     """
     positions = np.asarray(positions)
     parents = np.asarray(parents)
@@ -218,6 +237,8 @@ def validate_skeleton(
     n = positions.shape[0]
     if n < 2:
         raise InputError(f"a skeleton needs at least 2 joints (one bone), got {n}", name)
+    if n > MAX_JOINTS:
+        raise InputError(f"{n} joints, more than the {MAX_JOINTS} a skeleton may have", name)
     labels = labels or _default_labels(n)
     bad = ~np.all(np.isfinite(positions), axis=1)
     if bad.any():
@@ -239,14 +260,8 @@ def validate_skeleton(
     if roots.size > 1:
         shown = ", ".join(labels[r] for r in roots[:5]) + (", ..." if roots.size > 5 else "")
         raise InputError(f"{roots.size} root joints ({shown}); a skeleton must be a single tree", name)
-    # every joint must reach the root within n steps
-    reach = parents < 0
-    cur = parents.copy()
-    for _ in range(n):
-        reach |= cur < 0
-        cur = np.where(cur < 0, -1, parents[np.maximum(cur, 0)])
-        if reach.all():
-            break
+    reach = np.zeros(n, dtype=bool)
+    reach[_breadth_first(parents)] = True  # joints reachable from the root; a cycle is not
     if not reach.all():
         stuck = np.flatnonzero(~reach)
         shown = ", ".join(labels[j] for j in stuck[:5]) + (", ..." if stuck.size > 5 else "")
@@ -297,12 +312,9 @@ def merge_zero_length_bones(
     positions = np.asarray(positions, dtype=np.float64)
     parents = np.asarray(parents, dtype=np.int64)
     n = parents.shape[0]
-    depth = np.zeros(n, dtype=np.int64)
-    for j in range(n):
-        p = parents[j]
-        while p >= 0 and depth[j] <= n:
-            depth[j] += 1
-            p = parents[p]
+    depth = np.full(n, n + 1, dtype=np.int64)  # joints on a cycle (unreachable) sort last
+    for j in _breadth_first(parents):
+        depth[j] = 0 if parents[j] < 0 else depth[parents[j]] + 1
     threshold = rel_tol * float(np.linalg.norm(np.ptp(positions, axis=0))) if n else 0.0
     rep = np.arange(n)  # kept joint each joint is represented by
     for j in np.argsort(depth, kind="stable"):

@@ -23,6 +23,10 @@ Formats (``fmt``; auto-detected from the suffix unless given):
 
 Vertex maps become surface points on the lowest-index face containing the vertex, with one-hot
 barycentrics. Every problem raises :class:`~ncflow.errors.InputError` with one line naming the file.
+Arrays are read without pickles and their headers checked before allocating
+(:func:`ncflow.io.files.read_npy_array`); a ``.npz`` is inflated only for ``face``, ``bary`` and
+``target_index``, and only when they total at most :func:`npz_byte_limit` bytes (what a map of the
+target's vertices can need).
 """
 
 from __future__ import annotations
@@ -38,7 +42,7 @@ from ncflow.errors import InputError, first_line
 from ncflow.geometry.barycentric import vertex_surface_points
 from ncflow.geometry.mesh import Mesh
 from ncflow.io.atomic import atomic_path
-from ncflow.io.files import read_npz_arrays
+from ncflow.io.files import MAX_ARRAY_BYTES, check_regular_file, read_npy_array, read_npz_arrays
 
 GT_FORMATS = ("identity", "vts", "index", "npz", "template")
 _SUFFIX_FORMAT = {".vts": "vts", ".txt": "index", ".npy": "index", ".npz": "npz"}
@@ -90,12 +94,31 @@ def ground_truth_from_vertex_map(
 # Reading
 
 
-def _parse_integers(path: Path, values: np.ndarray, where: list[str]) -> np.ndarray:
-    """Integers from a numeric array; NaN and non-integral values are errors."""
+def npz_byte_limit(n_target: int) -> int:
+    """Largest total size of the arrays read from a ground-truth ``.npz`` for a target of ``n_target`` vertices.
+
+    ``face``, ``bary`` (three values) and ``target_index`` take at most 5 × 16 bytes per target
+    vertex; the limit is twice that plus 1 MiB, and at most :data:`~ncflow.io.files.MAX_ARRAY_BYTES`.
+    """
+    return min(MAX_ARRAY_BYTES, 160 * int(n_target) + 2**20)
+
+
+class _Where:
+    """Names entries in messages (``entry 6``, ``line 7``) without building one string per entry."""
+
+    def __init__(self, prefix: str, numbers: list[int] | None = None):
+        self.prefix, self.numbers = prefix, numbers
+
+    def __getitem__(self, k: int) -> str:
+        return f"{self.prefix} {k if self.numbers is None else self.numbers[k]}"
+
+
+def _parse_integers(path: Path, values: np.ndarray, where) -> np.ndarray:
+    """Integers from a numeric array; NaN, infinite, huge and non-integral values are errors."""
     nan = np.isnan(values)
     if np.any(nan):
         raise InputError(f"{int(nan.sum())} entries are NaN (first: {where[int(np.argmax(nan))]})", path)
-    frac = values != np.round(values)
+    frac = (values != np.round(values)) | (np.abs(values) > 2**62)
     if np.any(frac):
         k = int(np.argmax(frac))
         raise InputError(f"{where[k]}: expected an integer vertex index, got {values[k]:g}", path)
@@ -112,30 +135,25 @@ def read_index_file(path: str | os.PathLike) -> Int[np.ndarray, " n"]:
     return _read_indices(Path(path))[0]
 
 
-def _read_indices(path: Path) -> tuple[np.ndarray, list[str]]:
+def _read_indices(path: Path) -> tuple[np.ndarray, _Where]:
     """(integers, where each came from: "line 7" or "entry 6")."""
-    if not path.exists():
-        raise InputError("no such file", path)
-    if path.is_dir():
-        raise InputError("is a directory, expected a ground-truth file", path)
+    check_regular_file(path, "ground-truth")
     if path.suffix.lower() == ".npy":
         with open(path, "rb") as fh:
             magic = fh.read(6)
         if magic != b"\x93NUMPY":
             raise InputError("cannot read .npy array (not a NumPy .npy file)", path)
-        try:
-            arr = np.load(path, allow_pickle=False)
-        except Exception as exc:
-            raise InputError(f"cannot read .npy array ({first_line(exc)})", path) from None
-        arr = np.asarray(arr)
+        arr = read_npy_array(path)
         if arr.ndim == 2 and 1 in arr.shape:
             arr = arr.reshape(-1)
         if arr.ndim != 1:
             raise InputError(f"expected a 1-D array of vertex indices, got shape {arr.shape}", path)
-        where = [f"entry {i}" for i in range(arr.size)]
+        where = _Where("entry")
         if arr.size == 0:
             raise InputError("empty array", path)
         if np.issubdtype(arr.dtype, np.integer):
+            if arr.dtype == np.uint64 and np.any(arr > 2**62):
+                raise InputError("vertex indices out of range (above 2**62)", path)
             return arr.astype(np.int64), where
         if not np.issubdtype(arr.dtype, np.floating):
             raise InputError(f"expected integer vertex indices, got dtype {arr.dtype}", path)
@@ -144,7 +162,7 @@ def _read_indices(path: Path) -> tuple[np.ndarray, list[str]]:
         text = path.read_text(errors="strict")
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"cannot read text ({first_line(exc)})", path) from None
-    values, where = [], []
+    values, lines = [], []
     for lineno, line in enumerate(text.splitlines(), start=1):
         s = line.strip()
         if not s or s.startswith("#"):
@@ -156,13 +174,14 @@ def _read_indices(path: Path) -> tuple[np.ndarray, list[str]]:
             values.append(float(tokens[0]))
         except ValueError:
             raise InputError(f"line {lineno}: not a number: {tokens[0][:40]!r}", path) from None
-        where.append(f"line {lineno}")
+        lines.append(lineno)
     if not values:
         raise InputError("no vertex indices in file (empty?)", path)
+    where = _Where("line", lines)
     return _parse_integers(path, np.asarray(values), where), where
 
 
-def _check_range(idx: np.ndarray, where: list[str], path, one_based: bool, mesh: str, n: int) -> None:
+def _check_range(idx: np.ndarray, where: _Where, path, one_based: bool, mesh: str, n: int) -> None:
     lo = 1 if one_based else 0
     hi = n - 1 + lo
     bad = (idx < lo) | (idx > hi)
@@ -189,11 +208,8 @@ def _load_vertex_map(path: Path, source: Mesh, target: Mesh, one_based: bool) ->
 
 
 def _load_npz(path: Path, source: Mesh, target: Mesh, bary_tol: float) -> GroundTruth:
-    if not path.exists():
-        raise InputError("no such file", path)
-    if path.is_dir():
-        raise InputError("is a directory, expected a ground-truth file", path)
-    arrays = read_npz_arrays(path, ("face", "bary"))
+    check_regular_file(path, "ground-truth")
+    arrays = read_npz_arrays(path, ("face", "bary"), ("target_index",), max_bytes=npz_byte_limit(target.n_vertices))
     face, bary = arrays["face"], arrays["bary"]
     if face.ndim != 1:
         raise InputError(f"array 'face' must be 1-D, got shape {face.shape}", path)
@@ -221,7 +237,7 @@ def _load_npz(path: Path, source: Mesh, target: Mesh, bary_tol: float) -> Ground
         _check_count(face.shape[0], target.n_vertices, path)
         ti = np.arange(target.n_vertices)
     if np.issubdtype(face.dtype, np.floating):
-        face = _parse_integers(path, face.astype(np.float64), [f"face entry {i}" for i in range(face.size)])
+        face = _parse_integers(path, face.astype(np.float64), _Where("face entry"))
     elif not np.issubdtype(face.dtype, np.integer):
         raise InputError(f"array 'face' must hold integers, got dtype {face.dtype}", path)
     face = face.astype(np.int64)

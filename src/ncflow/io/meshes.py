@@ -7,6 +7,15 @@ duplicates), or when asked, and the map back to the file's vertices is kept in
 their count) rather than triangulated silently, and every mesh is validated
 (:func:`~ncflow.geometry.mesh.validate_mesh`). :func:`save_mesh` is the one mesh writer: by suffix,
 in the given vertex order, atomically, at float32 (through trimesh) or float64 precision.
+
+Hostile files: materials and textures are never loaded (ncflow needs only the geometry), and the
+resources a file names (glTF buffers) are read through a resolver confined to the file's folder
+(:func:`ncflow.io.files.read_confined`: no ``..``, absolute paths, schemes, links out of the folder
+or special files). A glTF/GLB is checked from its JSON before trimesh decodes it: every accessor
+must fit in its buffer (:func:`~ncflow.io.gltf.document.check_accessor_sizes`), and the scene may
+instance meshes at most :data:`MAX_MESH_INSTANCES` times with at most :data:`MAX_MESH_TRIANGLES`
+triangles in all; the same limits are checked on the loaded scene of every format before its
+instances are merged into one mesh.
 """
 
 from __future__ import annotations
@@ -18,12 +27,26 @@ from pathlib import Path
 import numpy as np
 from jaxtyping import Float, Int
 
-from ncflow.errors import InputError
+from ncflow.errors import InputError, first_line
 from ncflow.geometry.mesh import Mesh, _check_finite_and_range, validate_mesh, weld_vertices
 from ncflow.io.atomic import atomic_path, atomic_write_bytes, atomic_write_text
-from ncflow.io.files import check_input_file
+from ncflow.io.files import MAX_ARRAY_BYTES, check_input_file, read_confined
+from ncflow.io.gltf.document import (
+    DocumentReader,
+    check_accessor_sizes,
+    get_field,
+    load_document,
+    malformed,
+    node_hierarchy,
+)
 
 MESH_SUFFIXES = (".obj", ".ply", ".off", ".stl", ".glb", ".gltf")
+
+MAX_MESH_INSTANCES = 1_000
+"""Most mesh (primitive) instances a scene file may place (glTF nodes sharing a mesh count once each)."""
+
+MAX_MESH_TRIANGLES = 10_000_000
+"""Most triangles a mesh file may give, all instances counted."""
 
 
 _WELD_BY_DEFAULT = (".stl", ".glb", ".gltf")
@@ -68,9 +91,143 @@ def _declared_polygon_sizes(path: Path) -> np.ndarray | None:
             with open(path, errors="replace") as fh:
                 body = fh.read().split("end_header", 1)[1].strip().splitlines()
             return np.asarray([int(ln.split()[0]) for ln in body[nv : nv + nf]], dtype=np.int64)
-    except (OSError, ValueError, IndexError):
+    except (OSError, ValueError, IndexError, OverflowError):
         return None
     return None
+
+
+def _confined_resolver(path: Path):
+    """A trimesh resolver that reads only regular files inside ``path``'s folder (refusals are kept)."""
+    import trimesh.resolvers
+
+    class ConfinedResolver(trimesh.resolvers.Resolver):
+        """Resources of one mesh file, confined to its folder (:func:`~ncflow.io.files.read_confined`)."""
+
+        def __init__(self, folder: Path, prefix: str, unquote: bool):
+            self.folder, self.prefix, self.unquote = folder, prefix, unquote
+            self.refused: list[str] = []
+
+        def get(self, name):
+            name = str(name)
+            try:
+                return read_confined(
+                    self.folder, os.path.join(self.prefix, name), MAX_ARRAY_BYTES, unquote=self.unquote
+                )
+            except ValueError as exc:
+                self.refused.append(f"refusing external file {name[:80]!r} ({exc})")
+                raise FileNotFoundError(name) from None
+
+        def namespaced(self, namespace):
+            return ConfinedResolver(self.folder, os.path.join(self.prefix, str(namespace)), self.unquote)
+
+        def keys(self):
+            return iter(())
+
+        def write(self, name, data):
+            raise PermissionError("ncflow does not write beside input meshes")
+
+    return ConfinedResolver(path.parent, "", path.suffix.lower() == ".gltf")
+
+
+def _primitive_triangles(doc, prim) -> int:
+    """Triangles a primitive makes, from its accessor counts (0 for points and lines)."""
+    mode = get_field(prim, "mode")
+    mode = 4 if mode is None else mode
+    if mode not in (4, 5, 6):
+        return 0
+    accessors = doc.accessors or []
+    index = get_field(prim, "indices")
+    if index is None:
+        index = get_field(get_field(prim, "attributes"), "POSITION")
+    if not isinstance(index, int) or not 0 <= index < len(accessors):
+        return 0
+    n = int(get_field(accessors[index], "count", 0) or 0)
+    return n // 3 if mode == 4 else max(n - 2, 0)
+
+
+def mesh_instance_counts(doc) -> tuple[int, int]:
+    """(mesh primitive instances, triangles after instancing) over every node of a document with a mesh."""
+    meshes = doc.meshes or []
+    per_mesh = {}
+    instances = triangles = 0
+    for node in doc.nodes or []:
+        m = get_field(node, "mesh")
+        if not isinstance(m, int) or not 0 <= m < len(meshes):
+            continue
+        if m not in per_mesh:
+            prims = get_field(meshes[m], "primitives") or []
+            per_mesh[m] = (len(prims), sum(_primitive_triangles(doc, p) for p in prims))
+        instances += per_mesh[m][0]
+        triangles += per_mesh[m][1]
+    return instances, triangles
+
+
+def _check_gltf_before_loading(path: Path) -> None:
+    """Accessor sizes, resource URIs (:func:`~ncflow.io.gltf.document.load_document`), the node forest and
+    instance counts of a glTF/GLB, from its JSON (nothing decoded).
+    """
+    doc = load_document(path)
+    reader = DocumentReader(doc, path)
+    with malformed(path):
+        check_accessor_sizes(doc, reader)
+        node_hierarchy(doc, reader)  # a forest: no cycles or shared children for trimesh to walk
+        _check_instances(*mesh_instance_counts(doc), path)
+
+
+def _check_instances(instances: int, triangles: int, path: Path) -> None:
+    """InputError beyond :data:`MAX_MESH_INSTANCES` instances or :data:`MAX_MESH_TRIANGLES` triangles."""
+    if instances > MAX_MESH_INSTANCES:
+        raise InputError(f"the scene places {instances} mesh instances, more than {MAX_MESH_INSTANCES}", path)
+    if triangles > MAX_MESH_TRIANGLES:
+        raise InputError(
+            f"the scene has {triangles} triangles (instances counted), more than {MAX_MESH_TRIANGLES}", path
+        )
+
+
+def _scene_to_mesh(scene, path: Path):
+    """One mesh from a loaded trimesh scene, after checking its instance and triangle counts."""
+    nodes = list(scene.graph.nodes_geometry)
+    triangles = 0
+    for node in nodes:
+        geometry = scene.geometry.get(scene.graph[node][1])
+        triangles += len(getattr(geometry, "faces", ()))
+    _check_instances(len(nodes), triangles, path)
+    to_mesh = getattr(scene, "to_mesh", None)  # trimesh >= 4.5; older: dump(concatenate=True)
+    return to_mesh() if to_mesh is not None else scene.dump(concatenate=True)
+
+
+def _load_trimesh(path: Path, suffix: str):
+    """The file through trimesh as one mesh (no materials, confined resources, instance limits)."""
+    import trimesh
+
+    if suffix in (".gltf", ".glb"):
+        _check_gltf_before_loading(path)
+    resolver = _confined_resolver(path)
+    try:
+        scene = trimesh.load(
+            str(path), force="scene", resolver=resolver, skip_materials=True, process=False, maintain_order=True
+        )
+        return _scene_to_mesh(scene, path)
+    except InputError:
+        raise
+    except Exception:
+        if resolver.refused:
+            raise InputError(resolver.refused[0], path) from None
+        raise
+
+
+def _mesh_arrays(loaded, path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices (V, 3) float64, faces int64) of what trimesh loaded; InputError for other shapes."""
+    try:
+        vertices = np.asarray(getattr(loaded, "vertices", np.zeros((0, 3))), dtype=np.float64)
+        faces = np.asarray(getattr(loaded, "faces", np.zeros((0, 3))), dtype=np.int64)
+    except (TypeError, ValueError, OverflowError) as exc:
+        raise InputError(f"cannot read mesh ({first_line(exc)[:100]})", path) from None
+    if vertices.size == 0:
+        vertices = vertices.reshape(0, 3)
+    if vertices.ndim != 2 or vertices.shape[1] != 3:
+        raise InputError(f"vertices must have 3 coordinates, got an array of shape {vertices.shape}", path)
+    return vertices, faces
 
 
 def load_mesh(path: str | os.PathLike, *, weld: bool | None = None, validate: bool = True) -> Mesh:
@@ -88,8 +245,6 @@ def load_mesh(path: str | os.PathLike, *, weld: bool | None = None, validate: bo
     Raises:
         InputError: one line naming the file and the problem.
     """
-    import trimesh
-
     path = Path(path)
     suffix = check_input_file(path, "mesh", MESH_SUFFIXES)
     sizes = _declared_polygon_sizes(path)
@@ -101,18 +256,19 @@ def load_mesh(path: str | os.PathLike, *, weld: bool | None = None, validate: bo
             path,
         )
     try:
-        loaded = trimesh.load(str(path), process=False, maintain_order=True, force="mesh")
+        loaded = _load_trimesh(path, suffix)
+    except InputError:
+        raise
     except IndexError:
         if suffix == ".obj":  # trimesh's OBJ reader indexes the vertex list with the face indices
             raise InputError("face index out of range", path) from None
         raise InputError("cannot read mesh (corrupt or truncated file)", path) from None
     except Exception as exc:  # trimesh raises many kinds of errors for broken files
-        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        msg = first_line(exc)
         if "outside the range" in msg or "out of bounds" in msg:
             raise InputError("face index out of range", path) from None
-        raise InputError(f"cannot read mesh ({msg})", path) from None
-    vertices = np.asarray(getattr(loaded, "vertices", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
-    faces = np.asarray(getattr(loaded, "faces", np.zeros((0, 3))), dtype=np.int64)
+        raise InputError(f"cannot read mesh ({msg[:100]})", path) from None
+    vertices, faces = _mesh_arrays(loaded, path)
     if faces.size == 0:
         raise InputError("no faces (a point cloud or an empty file?)", path)
     if faces.ndim != 2 or faces.shape[1] != 3:

@@ -422,7 +422,7 @@ def read_result(out_dir: str | os.PathLike, *, check_animation: bool = True) -> 
     npz_path = out_dir / "map_tgt_to_src.npz"
     if not npz_path.is_file():
         raise InputError("missing result file", npz_path)
-    arrays = read_npz_arrays(npz_path, ("face", "bary"))
+    arrays = read_npz_arrays(npz_path, ("face", "bary"), ())
     face, bary = arrays["face"], arrays["bary"]
     if face.ndim != 1 or not np.issubdtype(face.dtype, np.integer):
         raise InputError(f"'face' must be a 1-D integer array, got shape {face.shape} dtype {face.dtype}", npz_path)

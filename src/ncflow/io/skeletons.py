@@ -19,7 +19,11 @@ Formats (chosen by suffix):
 
 Every reader returns a validated :class:`~ncflow.geometry.skeleton.Skeleton` (joints sorted
 topologically, the map back to the file's order kept) or raises one
-:class:`~ncflow.errors.InputError` line naming the file.
+:class:`~ncflow.errors.InputError` line naming the file. Hostile files are refused, not crashed on:
+TGF node ids must be integers in [0, 2**63) and unique; JSON that is nested too deeply or holds
+numbers too long to convert is refused; a skeleton has at most
+:data:`~ncflow.geometry.skeleton.MAX_JOINTS` joints, and reading and validating take time linear
+in the size of the file.
 """
 
 from __future__ import annotations
@@ -32,16 +36,16 @@ from pathlib import Path
 import numpy as np
 
 from ncflow.errors import InputError
-from ncflow.geometry.skeleton import Skeleton, _default_labels
+from ncflow.geometry.skeleton import MAX_JOINTS, Skeleton, _default_labels
 from ncflow.io.atomic import atomic_write_text
-from ncflow.io.files import check_input_file, read_json_object
+from ncflow.io.files import check_input_file, check_regular_file, read_json_object, short_repr
 
 SKELETON_SUFFIXES = (".tgf", ".json", ".glb", ".gltf")
 
 
 def read_tgf(path: str | os.PathLike) -> Skeleton:
     """Read a libigl TGF skeleton (see the module docstring for the accepted variants)."""
-    path = Path(path)
+    path = check_regular_file(path, "TGF skeleton")
     try:
         text = path.read_text(errors="replace")
     except OSError as exc:
@@ -64,15 +68,19 @@ def read_tgf(path: str | os.PathLike) -> Skeleton:
             if section == 0:
                 if len(tok) < 4:
                     raise ValueError
-                node_ids.append(int(tok[0]))
+                node_ids.append(_node_id(tok[0], lineno, path))
                 coords.append([float(x) for x in tok[1:4]])
             else:
                 if len(tok) < 2:
                     raise ValueError
-                edges.append((int(tok[0]), int(tok[1]), lineno))
+                edges.append((_node_id(tok[0], lineno, path), _node_id(tok[1], lineno, path), lineno))
+        except InputError:
+            raise
         except ValueError:
             want = "'id x y z'" if section == 0 else "'a b' (two node indices)"
             raise InputError(f"line {lineno}: expected {want}, got {line[:60]!r}", path) from None
+        if len(node_ids) > MAX_JOINTS:
+            raise InputError(f"more than {MAX_JOINTS} nodes, the most a skeleton may have", path)
     if not node_ids:
         raise InputError("no node lines ('id x y z'); not a TGF skeleton?", path)
     if section == 0:
@@ -108,6 +116,16 @@ def read_tgf(path: str | os.PathLike) -> Skeleton:
     coords_arr = np.asarray(coords, dtype=np.float64)
     parents = _parents_from_edges(idx, n, labels, [ln for *_, ln in edges], path)
     return Skeleton.from_arrays(coords_arr, parents, name=path, labels=labels)
+
+
+def _node_id(token: str, lineno: int, path) -> int:
+    """A TGF node id: an integer in [0, 2**63); ``ValueError`` when it is no integer, InputError when out of range."""
+    if len(token) > 30:
+        raise InputError(f"line {lineno}: node id {token[:40]!r}... is too long", path)
+    value = int(token)
+    if not 0 <= value < 2**63:
+        raise InputError(f"line {lineno}: node id {value} is out of range [0, 2**63)", path)
+    return value
 
 
 def _parents_from_edges(idx: np.ndarray, n: int, labels: list[str], lines: list[int], path) -> np.ndarray:
@@ -184,7 +202,7 @@ def read_skeleton_json(path: str | os.PathLike) -> Skeleton:
             raise InputError(f"missing key {key!r}", path)
     try:
         positions = np.asarray(data["positions"], dtype=np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError, RecursionError):
         raise InputError("'positions' must be a list of [x, y, z] numbers", path) from None
     if positions.ndim != 2 or positions.shape[1] != 3:
         raise InputError(f"'positions' must be a list of [x, y, z], got shape {positions.shape}", path)
@@ -208,13 +226,17 @@ def read_skeleton_json(path: str | os.PathLike) -> Skeleton:
             raise InputError(f"'radii' must be a list of {n} numbers or nulls (one per joint)", path)
         try:
             radii = np.asarray([math.nan if r is None else float(r) for r in radii], dtype=np.float64)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise InputError("'radii' must contain numbers or nulls", path) from None
         bad = np.isfinite(radii) & ~(radii > 0)
         bad |= np.isinf(radii)
         if bad.any():
             raise InputError(f"'radii' entry {int(np.argmax(bad))} must be a positive number or null", path)
     labels = _default_labels(n, names)
+    bad = [k for k, p in enumerate(raw_parents) if not -1 <= p < n]  # before int64: no OverflowError
+    if bad:
+        k = bad[0]
+        raise InputError(f"{labels[k]} has parent {short_repr(raw_parents[k], 40)}, out of range [-1, {n - 1}]", path)
     parents = np.asarray(raw_parents, dtype=np.int64)
     return Skeleton.from_arrays(positions, parents, names, radii, name=path, labels=labels)
 

@@ -26,7 +26,7 @@ from ncflow.io.meshes import load_mesh
 from ncflow.match.placement import Placement, place_target, placement_candidates
 from ncflow.match.pose_search import PoseSearchResult, search_poses
 from ncflow.skeleton import Skeleton, check_inside, load_skeleton
-from ncflow.tissue import tissue_centroids
+from ncflow.tissue import centroids_digest, load_tissue_file, tissue_centroids
 
 DTYPE = jnp.float32  # training dtype (DESIGN.md: float32 for training)
 
@@ -177,7 +177,11 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Prob
     )
     tgt_v = placement.apply(tgt_v)
     t0 = time.perf_counter()
-    if config.sampling.tissue_samples > 0 and config.weights.tissue > 0:
+    if config.sampling.tissue_samples > 0 and config.weights.tissue > 0 and config.tissue.file:
+        centroids = load_tissue_file(config.tissue.file, work.vertices)
+        tissue_info = {"file": config.tissue.file, "n_centroids": int(centroids.shape[0])}
+        tissue_info["sha256"] = centroids_digest(centroids)
+    elif config.sampling.tissue_samples > 0 and config.weights.tissue > 0:
         message("tetrahedralising the source for soft-tissue samples ...")
         centroids, tissue_info = tissue_centroids(work.vertices, work.faces, config.tissue)
     else:

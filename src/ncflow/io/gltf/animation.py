@@ -24,7 +24,7 @@ from jaxtyping import Float
 
 from ncflow.errors import InputError
 from ncflow.geometry.rigid import quat_slerp
-from ncflow.io.gltf.document import DocumentReader, get_field, load_document
+from ncflow.io.gltf.document import DocumentReader, get_field, load_document, malformed
 
 _INTERPOLATIONS = ("LINEAR", "STEP", "CUBICSPLINE")
 
@@ -196,10 +196,6 @@ def gltf_animations(path: str | os.PathLike) -> list[AnimationInfo]:
     path = Path(path)
     doc = load_document(path)
     reader = DocumentReader(doc, path)
-    try:
+    with malformed(path, "glTF animations"):
         infos, _ = read_animations(doc, reader, len(doc.nodes or []))
-    except InputError:
-        raise
-    except (TypeError, ValueError, KeyError, IndexError, AttributeError) as exc:
-        raise InputError(f"malformed glTF animations ({type(exc).__name__})", path) from None
     return infos

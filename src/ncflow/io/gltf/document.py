@@ -9,6 +9,14 @@ also decomposed into TRS); the node hierarchy must be a forest (no cycles, no sh
 Required extensions that change how positions, skins or animations are stored are refused with
 the advice to decompress the file first.
 
+Hostile files are refused before anything is allocated or read from elsewhere: a buffer or image
+``uri`` that could lead out of the file's folder (:func:`check_resource_uris`); an external buffer
+that is no regular file inside it (:func:`ncflow.io.files.read_confined`; only its first
+``byteLength`` bytes are read, and messages never give the size of another file); an accessor
+whose byte range leaves its buffer view, or a view its buffer (:func:`check_accessor_sizes`, from
+the JSON alone); limits :data:`MAX_NODES`, :data:`MAX_BUFFER_BYTES`, :data:`MAX_ZERO_ACCESSOR_BYTES`
+and :data:`READ_FACTOR`; JSON nested too deeply or with numbers too long to convert.
+
 What is done with a document is in :mod:`ncflow.io.gltf.skins` (skins, skinned meshes, posing)
 and :mod:`ncflow.io.gltf.animation` (clips and their sampling).
 """
@@ -16,16 +24,30 @@ and :mod:`ncflow.io.gltf.animation` (clips and their sampling).
 from __future__ import annotations
 
 import base64
+import contextlib
 import json
-import urllib.parse
+import re
 from pathlib import Path
 
 import numpy as np
 
-from ncflow.errors import InputError
+from ncflow.errors import InputError, first_line
 from ncflow.geometry.rigid import matrix_to_quat, trs_matrix
+from ncflow.io.files import check_regular_file, confined_path, read_confined, short_repr
 
 GLTF_SUFFIXES = (".glb", ".gltf")
+
+MAX_NODES = 100_000
+"""Most nodes a glTF document may have."""
+
+MAX_BUFFER_BYTES = 2 * 2**30
+"""Largest ``byteLength`` of one buffer (2 GiB)."""
+
+MAX_ZERO_ACCESSOR_BYTES = 64 * 2**20
+"""Largest accessor without a buffer view (all zeros plus sparse values; 64 MiB)."""
+
+READ_FACTOR = 4
+"""Decoded accessors total at most ``READ_FACTOR`` × the buffers' bytes + 64 MiB (no buffer decoded 1000s of times)."""
 
 _COMPONENT_DTYPES = {
     5120: np.dtype("<i1"),
@@ -61,14 +83,23 @@ def get_field(obj, key, default=None):
     return getattr(obj, key, default)
 
 
+@contextlib.contextmanager
+def malformed(path, what: str = "glTF"):
+    """Turn the errors that a JSON structure of unexpected types causes into one InputError line."""
+    try:
+        yield
+    except InputError:
+        raise
+    except (TypeError, ValueError, KeyError, IndexError, AttributeError, OverflowError, RecursionError) as exc:
+        msg = first_line(exc)[:80] if str(exc) else ""
+        raise InputError(f"malformed {what} ({type(exc).__name__}{': ' + msg if msg else ''})", path) from None
+
+
 def load_document(path: Path):
     """Parse a .glb or .gltf file with pygltflib; InputError if it is not one."""
     import pygltflib
 
-    if not path.exists():
-        raise InputError("no such file", path)
-    if path.is_dir():
-        raise InputError("is a directory, expected a glTF file", path)
+    path = check_regular_file(path, "glTF")
     try:
         data = path.read_bytes()
     except OSError as exc:
@@ -86,22 +117,63 @@ def load_document(path: Path):
             doc = pygltflib.GLTF2.gltf_from_json(text)
     except (UnicodeDecodeError, json.JSONDecodeError):
         raise InputError("not a glTF 2.0 file (neither GLB nor glTF JSON)", path) from None
+    except RecursionError:
+        raise InputError("not a readable glTF 2.0 file (JSON nested too deeply)", path) from None
     except Exception as exc:  # pygltflib raises many kinds of errors for broken files
-        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise InputError(f"not a readable glTF 2.0 file ({msg})", path) from None
+        raise InputError(f"not a readable glTF 2.0 file ({first_line(exc)[:80]})", path) from None
     if doc is None:
         raise InputError("not a readable glTF 2.0 file (no JSON chunk)", path)
+    with malformed(path):
+        _check_header(doc, path)
+        check_resource_uris(doc, path)
+    return doc
+
+
+def _check_header(doc, path: Path) -> None:
+    """Version, required extensions and the node count of a parsed document."""
     version = str(get_field(doc.asset, "version", "") or "")
     if not version.startswith("2"):
-        raise InputError(f"glTF version {version or '(missing)'} is not supported; need 2.x", path)
-    unsupported = sorted(set(get_field(doc, "extensionsRequired") or []) - _SUPPORTED_REQUIRED)
+        shown = short_repr(version, 40) if version else "(missing)"
+        raise InputError(f"glTF version {shown} is not supported; need 2.x", path)
+    unsupported = sorted({str(e) for e in get_field(doc, "extensionsRequired") or []} - _SUPPORTED_REQUIRED)
     if unsupported:
         raise InputError(
-            f"needs glTF extension(s) {', '.join(unsupported)}, which ncflow cannot read "
+            f"needs glTF extension(s) {short_repr(', '.join(unsupported))}, which ncflow cannot read "
             "(decompress the file first, e.g. with gltf-transform)",
             path,
         )
-    return doc
+    for key in ("nodes", "meshes", "accessors", "bufferViews", "buffers", "skins", "animations", "scenes"):
+        value = get_field(doc, key)
+        if value is not None and not isinstance(value, list):
+            raise InputError(f"malformed glTF ('{key}' is not a list)", path)
+    if len(doc.nodes or []) > MAX_NODES:
+        raise InputError(f"{len(doc.nodes)} nodes, more than the {MAX_NODES} a glTF file may have here", path)
+
+
+_LONG_NUMBER = re.compile(r"\d{25,}")
+
+
+def _count(value, what: str, key: str, fail, default=0) -> int:
+    """A JSON field that must be a non-negative integer (``default`` when absent)."""
+    if value is None:
+        return default
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        if not (isinstance(value, float) and value.is_integer()):
+            fail(f"{what}: {key} must be a non-negative integer, got {short_repr(value, 40)}")
+    value = int(value)
+    if value < 0:
+        fail(f"{what}: {key} must be a non-negative integer, got {value}")
+    return value
+
+
+def _element_layout(dtype: np.dtype, shape: tuple) -> tuple[int, int, int]:
+    """(columns, bytes per column, column stride) of one element; matrix columns start on 4-byte boundaries."""
+    csize = dtype.itemsize
+    if len(shape) == 2:
+        rows, cols = shape
+        return cols, rows * csize, -(-rows * csize // 4) * 4
+    n = int(np.prod(shape)) * csize
+    return 1, n, n
 
 
 class DocumentReader:
@@ -111,85 +183,163 @@ class DocumentReader:
         self.doc = doc
         self.path = path
         self._buffers: dict[int, bytes] = {}
+        self._decoded = 0  # bytes of accessor data decoded so far
+        self._buffer_total: int | None = None
+
+    def _count_decoded(self, nbytes: int, what: str) -> None:
+        """Add to the bytes decoded from this document; InputError beyond :data:`READ_FACTOR` × its buffers."""
+        if self._buffer_total is None:
+            self._buffer_total = sum(self.buffer_length(i) for i in range(len(self.doc.buffers or [])))
+        self._decoded += nbytes
+        if self._decoded > READ_FACTOR * self._buffer_total + 64 * 2**20:
+            self.fail(f"{what}: the accessors decoded add up to over {READ_FACTOR} times the file's buffers")
 
     def fail(self, message: str):
-        """Raise an InputError naming the file."""
-        raise InputError(message, self.path)
+        """Raise an InputError naming the file (numbers from the file longer than 24 digits cut short)."""
+        raise InputError(_LONG_NUMBER.sub(lambda m: m.group()[:20] + "...", message), self.path)
 
-    def buffer(self, index: int) -> bytes:
-        """The bytes of buffer ``index`` (GLB chunk, data URI or external file), read once."""
-        if index in self._buffers:
-            return self._buffers[index]
+    def buffer_length(self, index: int) -> int:
+        """The declared ``byteLength`` of buffer ``index`` (checked: an integer, at most :data:`MAX_BUFFER_BYTES`)."""
         buffers = self.doc.buffers or []
         if not 0 <= index < len(buffers):
             self.fail(f"buffer {index} does not exist")
-        uri = get_field(buffers[index], "uri")
+        length = _count(get_field(buffers[index], "byteLength"), f"buffer {index}", "byteLength", self.fail, None)
+        if length is None:
+            self.fail(f"buffer {index} has no byteLength")
+        if length > MAX_BUFFER_BYTES:
+            self.fail(f"buffer {index}: byteLength {length} is over the limit of {MAX_BUFFER_BYTES}")
+        return length
+
+    def buffer(self, index: int) -> bytes:
+        """The bytes of buffer ``index`` (GLB chunk, data URI or external file beside the glTF file), read once."""
+        if index in self._buffers:
+            return self._buffers[index]
+        length = self.buffer_length(index)
+        uri = get_field(self.doc.buffers[index], "uri")
         if uri is None:
             blob = self.doc.binary_blob() if index == 0 else None
             if blob is None:
                 self.fail(f"buffer {index} has no data (no uri and no GLB binary chunk)")
             data = bytes(blob)
+        elif not isinstance(uri, str):
+            self.fail(f"buffer {index}: uri must be a string")
         elif uri.startswith("data:"):
             try:
                 data = base64.b64decode(uri.split(",", 1)[1])
             except Exception:
                 self.fail(f"buffer {index} has a malformed data URI")
         else:
-            file = self.path.parent / urllib.parse.unquote(uri)
-            try:
-                data = file.read_bytes()
-            except OSError:
-                self.fail(f"buffer {index}: cannot read external file {uri!r}")
-        length = get_field(buffers[index], "byteLength")
-        if length is not None and len(data) < int(length):
-            self.fail(f"buffer {index} is shorter ({len(data)} bytes) than its byteLength {length}")
+            data = self._external(index, uri, length)
+        if len(data) < length:
+            self.fail(f"buffer {index} is shorter than its byteLength {length}")
         self._buffers[index] = data
         return data
+
+    def _external(self, index: int, uri: str, length: int) -> bytes:
+        """At most ``length`` bytes of an external buffer file confined to the glTF file's folder."""
+        try:
+            return read_confined(self.path.parent, uri, length, unquote=True)
+        except ValueError as exc:
+            self.fail(f"buffer {index}: refusing external file {short_repr(uri)} ({exc})")
+        except OSError:
+            self.fail(f"buffer {index}: cannot read external file {short_repr(uri)}")
+
+    def view_range(self, view_index: int, what: str) -> tuple[int, int, int, int]:
+        """(buffer, byteOffset, byteLength, byteStride or 0) of a buffer view, checked to lie in its buffer."""
+        views = self.doc.bufferViews or []
+        if not 0 <= view_index < len(views):
+            self.fail(f"{what}: bufferView {view_index} does not exist")
+        view = views[view_index]
+        name = f"bufferView {view_index}"
+        buffer = _count(get_field(view, "buffer"), name, "buffer", self.fail)
+        start = _count(get_field(view, "byteOffset"), name, "byteOffset", self.fail)
+        length = _count(get_field(view, "byteLength"), name, "byteLength", self.fail)
+        stride = _count(get_field(view, "byteStride"), name, "byteStride", self.fail)
+        if start + length > self.buffer_length(buffer):
+            self.fail(f"{name} reaches past the end of buffer {buffer}")
+        return buffer, start, length, stride
+
+    def _check_range(self, view_index: int, offset: int, count: int, dtype: np.dtype, shape: tuple, what: str):
+        """(buffer, first byte, stride, layout) of ``count`` elements in a view; InputError unless they fit in it."""
+        buffer, start, view_len, stride = self.view_range(view_index, what)
+        cols, col_bytes, col_stride = _element_layout(dtype, shape)
+        span = (cols - 1) * col_stride + col_bytes  # bytes one element touches
+        stride = stride or (-(-span // 4) * 4 if len(shape) == 2 else span)
+        if stride < span:
+            self.fail(f"{what}: byteStride {stride} is smaller than the element size {span}")
+        if count and offset + (count - 1) * stride + span > view_len:
+            self.fail(f"{what} reads past the end of its buffer view ({count} elements of {span} bytes)")
+        return buffer, start + offset, stride, (cols, col_bytes, col_stride)
 
     def _elements(
         self, view_index: int, offset: int, count: int, dtype: np.dtype, shape: tuple, what: str
     ) -> np.ndarray:
         """(count, *shape) elements from a buffer view (byteStride and matrix column padding honoured)."""
-        views = self.doc.bufferViews or []
-        if not 0 <= view_index < len(views):
-            self.fail(f"{what}: bufferView {view_index} does not exist")
-        view = views[view_index]
-        data = np.frombuffer(self.buffer(int(get_field(view, "buffer", 0))), dtype=np.uint8)
-        start = int(get_field(view, "byteOffset", 0) or 0)
-        view_len = int(get_field(view, "byteLength", 0) or 0)
-        csize = dtype.itemsize
-        if len(shape) == 2:  # matrix columns start on 4-byte boundaries
-            rows = shape[0]
-            col_stride = -(-rows * csize // 4) * 4
-            byte_pos = np.concatenate([c * col_stride + np.arange(rows * csize) for c in range(shape[1])])
-        else:
-            byte_pos = np.arange(int(np.prod(shape)) * csize)
-        elem_size = int(byte_pos[-1]) + 1 if byte_pos.size else 0
-        elem_size = -(-elem_size // 4) * 4 if len(shape) == 2 else elem_size
-        stride = int(get_field(view, "byteStride", 0) or 0) or elem_size
+        buffer, first, stride, (cols, col_bytes, col_stride) = self._check_range(
+            view_index, offset, count, dtype, shape, what
+        )
         if count == 0:
             return np.zeros((0,) + shape, dtype=dtype)
-        last = offset + (count - 1) * stride + int(byte_pos[-1]) + 1
-        if offset < 0 or last > view_len or start + view_len > data.size:
-            self.fail(f"{what} reads past the end of its buffer view")
-        idx = start + offset + np.arange(count)[:, None] * stride + byte_pos[None, :]
-        raw = np.ascontiguousarray(data[idx])
-        return raw.view(dtype).reshape((count,) + shape)
+        data = np.frombuffer(self.buffer(buffer), dtype=np.uint8)
+        raw = np.lib.stride_tricks.as_strided(  # bounds checked above: every byte lies inside the view
+            data[first:], shape=(count, cols, col_bytes), strides=(stride, col_stride, 1), writeable=False
+        )
+        return np.ascontiguousarray(raw).view(dtype).reshape((count,) + shape)
+
+    def _accessor_type(self, acc, what: str) -> tuple[np.dtype, tuple, int]:
+        """(component dtype, element shape, count) of an accessor."""
+        ctype = get_field(acc, "componentType")
+        atype = get_field(acc, "type")
+        count = _count(get_field(acc, "count"), what, "accessor count", self.fail)
+        if not isinstance(ctype, int) or ctype not in _COMPONENT_DTYPES:
+            self.fail(f"{what}: unknown accessor component type {short_repr(ctype, 40)}")
+        if not isinstance(atype, str) or atype not in _TYPE_SHAPES:
+            self.fail(f"{what}: unknown accessor type {short_repr(atype, 40)}")
+        return _COMPONENT_DTYPES[ctype], _TYPE_SHAPES[atype], count
+
+    def check_accessor(self, index: int, what: str) -> None:
+        """Check that accessor ``index`` (dense and sparse parts) fits in its buffer views, decoding nothing."""
+        accessors = self.doc.accessors or []
+        if not 0 <= index < len(accessors):
+            self.fail(f"{what}: accessor {index} does not exist")
+        acc = accessors[index]
+        dtype, shape, count = self._accessor_type(acc, what)
+        view = get_field(acc, "bufferView")
+        offset = _count(get_field(acc, "byteOffset"), what, "byteOffset", self.fail)
+        if view is None:
+            nbytes = count * int(np.prod(shape)) * dtype.itemsize
+            if nbytes > MAX_ZERO_ACCESSOR_BYTES:
+                self.fail(f"{what}: accessor without a bufferView of {nbytes} bytes, over {MAX_ZERO_ACCESSOR_BYTES}")
+        else:
+            self._check_range(_count(view, what, "bufferView", self.fail), offset, count, dtype, shape, what)
+        sparse = get_field(acc, "sparse")
+        n = _count(get_field(sparse, "count"), what, "sparse count", self.fail)
+        if sparse is None or n == 0:
+            return
+        if n > count:
+            self.fail(f"{what}: sparse count {n} exceeds the accessor count {count}")
+        ind, val = get_field(sparse, "indices"), get_field(sparse, "values")
+        if get_field(ind, "bufferView") is None or get_field(val, "bufferView") is None:
+            self.fail(f"{what}: sparse accessor without indices / values buffer views")
+        itype = get_field(ind, "componentType")
+        if itype not in (5121, 5123, 5125):
+            self.fail(f"{what}: sparse indices have invalid component type {short_repr(itype, 40)}")
+        for part, dt, sh in ((ind, _COMPONENT_DTYPES[itype], (1,)), (val, dtype, shape)):
+            v = _count(get_field(part, "bufferView"), what, "sparse bufferView", self.fail)
+            self._check_range(v, _count(get_field(part, "byteOffset"), what, "byteOffset", self.fail), n, dt, sh, what)
 
     def accessor(self, index: int | None, what: str) -> np.ndarray:
         """Accessor ``index`` as (count, *element shape): float64 for float / normalised data, int64 otherwise."""
         accessors = self.doc.accessors or []
-        if index is None or not 0 <= int(index) < len(accessors):
-            self.fail(f"{what}: accessor {index} does not exist")
-        acc = accessors[int(index)]
-        ctype = get_field(acc, "componentType")
-        atype = get_field(acc, "type")
-        count = int(get_field(acc, "count", 0) or 0)
-        if ctype not in _COMPONENT_DTYPES:
-            self.fail(f"{what}: unknown accessor component type {ctype}")
-        if atype not in _TYPE_SHAPES:
-            self.fail(f"{what}: unknown accessor type {atype!r}")
-        dtype, shape = _COMPONENT_DTYPES[ctype], _TYPE_SHAPES[atype]
+        if index is None or isinstance(index, bool) or not isinstance(index, (int, np.integer)):
+            self.fail(f"{what}: accessor {short_repr(index, 40)} does not exist")
+        index = int(index)
+        what = f"{what} (accessor {index})"
+        self.check_accessor(index, what)  # sizes first: nothing is allocated for a lying count
+        acc = accessors[index]
+        dtype, shape, count = self._accessor_type(acc, what)
+        sparse_count = _count(get_field(get_field(acc, "sparse"), "count"), what, "sparse count", self.fail)
+        self._count_decoded((count + sparse_count) * int(np.prod(shape)) * dtype.itemsize, what)
         view = get_field(acc, "bufferView")
         if view is None:
             out = np.zeros((count,) + shape, dtype=dtype)
@@ -199,11 +349,7 @@ class DocumentReader:
         if sparse is not None and int(get_field(sparse, "count", 0) or 0) > 0:
             n = int(get_field(sparse, "count"))
             ind, val = get_field(sparse, "indices"), get_field(sparse, "values")
-            if get_field(ind, "bufferView") is None or get_field(val, "bufferView") is None:
-                self.fail(f"{what}: sparse accessor without indices / values buffer views")
             itype = get_field(ind, "componentType")
-            if itype not in (5121, 5123, 5125):
-                self.fail(f"{what}: sparse indices have invalid component type {itype}")
             at = (
                 self._elements(
                     int(get_field(ind, "bufferView")),
@@ -231,6 +377,27 @@ class DocumentReader:
             f = out.astype(np.float64) / float(info.max)
             return np.maximum(f, -1.0) if info.min < 0 else f
         return out.astype(np.int64)
+
+
+def check_accessor_sizes(doc, reader: DocumentReader) -> None:
+    """Check every accessor and buffer view of a document against the declared buffer sizes (no decoding)."""
+    for i in range(len(doc.accessors or [])):
+        reader.check_accessor(i, f"accessor {i}")
+    for i in range(len(doc.bufferViews or [])):
+        reader.view_range(i, f"bufferView {i}")
+
+
+def check_resource_uris(doc, path: Path) -> None:
+    """Refuse buffer and image URIs that would read outside the glTF file's folder (nothing is read)."""
+    for key in ("buffers", "images"):
+        for i, item in enumerate(get_field(doc, key) or []):
+            uri = get_field(item, "uri")
+            if uri is None or (isinstance(uri, str) and uri.startswith("data:")):
+                continue
+            try:
+                confined_path(path.parent, uri, unquote=True)
+            except (ValueError, TypeError) as exc:
+                raise InputError(f"{key[:-1]} {i}: refusing external file {short_repr(uri)} ({exc})", path) from None
 
 
 def node_hierarchy(doc, reader: DocumentReader) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -321,11 +488,13 @@ def unique_names(raw: list[str | None]) -> list[str]:
     """Names made unique (``name_2``, ``name_3``, …); a missing name becomes ``joint{j}``."""
     names: list[str] = []
     seen: set[str] = set()
+    next_suffix: dict[str, int] = {}
     for j, name in enumerate(raw):
-        base = name if name else f"joint{j}"
-        candidate, k = base, 2
+        base = name if isinstance(name, str) and name else f"joint{j}"
+        candidate, k = base, next_suffix.get(base, 2)
         while candidate in seen:
             candidate, k = f"{base}_{k}", k + 1
+        next_suffix[base] = k
         seen.add(candidate)
         names.append(candidate)
     return names

@@ -51,9 +51,17 @@ from jaxtyping import Float, Int
 
 from ncflow.errors import InputError
 from ncflow.geometry.rigid import forward_kinematics, sparse_linear_blend_skinning, trs_matrix
-from ncflow.geometry.skeleton import Skeleton, _default_labels, merge_zero_length_bones
+from ncflow.geometry.skeleton import MAX_JOINTS, Skeleton, _default_labels, merge_zero_length_bones
 from ncflow.io.gltf.animation import AnimationInfo, Channel, check_time, interpolate_keyframes, read_animations
-from ncflow.io.gltf.document import DocumentReader, get_field, load_document, node_hierarchy, node_rest, unique_names
+from ncflow.io.gltf.document import (
+    DocumentReader,
+    get_field,
+    load_document,
+    malformed,
+    node_hierarchy,
+    node_rest,
+    unique_names,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -268,15 +276,36 @@ class GltfSkin:
         )
 
 
-def _skeleton_parents(joint_nodes: np.ndarray, node_parents: np.ndarray, node_depth: np.ndarray) -> np.ndarray:
-    """Parent joint of every joint: nearest joint ancestor node; extra roots attached to the top-most root."""
+def _check_invertible(inverse_bind: np.ndarray, what: str, reader: DocumentReader) -> None:
+    """InputError unless every inverse bind matrix is invertible (relative determinant, then a trial inverse)."""
+    a = inverse_bind[:, :3, :3]
+    with np.errstate(over="ignore", invalid="ignore"):
+        scale = np.max(np.abs(a), axis=(1, 2))
+        bad = ~(np.abs(np.linalg.det(a)) > 1e-12 * scale**3)  # also zero matrices, overflow to NaN
+    if np.any(bad):
+        reader.fail(f"{what}: singular inverse bind matrix (joint {int(np.argmax(bad))})")
+    try:
+        bind = np.linalg.inv(inverse_bind)
+    except np.linalg.LinAlgError:
+        reader.fail(f"{what}: singular inverse bind matrix")
+    if not np.all(np.isfinite(bind)):
+        reader.fail(f"{what}: inverse bind matrices whose inverse is not finite")
+
+
+def _skeleton_parents(
+    joint_nodes: np.ndarray, node_parents: np.ndarray, node_depth: np.ndarray, node_order: np.ndarray
+) -> np.ndarray:
+    """Parent joint of every joint: nearest joint ancestor node; extra roots attached to the top-most root.
+
+    One pass over the nodes, parents first (linear in the number of nodes, however deep the hierarchy).
+    """
     where = {int(node): j for j, node in enumerate(joint_nodes)}
-    parents = np.full(joint_nodes.shape[0], -1, dtype=np.int64)
-    for j, node in enumerate(joint_nodes):
+    nearest = np.full(node_parents.shape[0], -1, dtype=np.int64)  # nearest joint among a node's ancestors
+    for node in node_order.tolist():
         p = int(node_parents[node])
-        while p >= 0 and p not in where:
-            p = int(node_parents[p])
-        parents[j] = where[p] if p >= 0 else -1
+        if p >= 0:
+            nearest[node] = where[p] if p in where else nearest[p]
+    parents = nearest[joint_nodes]
     roots = np.flatnonzero(parents < 0)
     if roots.size > 1:
         root = int(roots[np.lexsort((roots, node_depth[joint_nodes[roots]]))[0]])
@@ -399,13 +428,8 @@ def load_gltf_skin(path: str | os.PathLike, skin: int | None = None, *, geometry
         InputError: not a glTF file, no skin, no skinned mesh (when ``geometry``), malformed data.
     """
     path = Path(path)
-    try:
+    with malformed(path):  # a JSON structure of unexpected types
         return _load_gltf_skin(path, skin, geometry)
-    except InputError:
-        raise
-    except (TypeError, ValueError, KeyError, IndexError, AttributeError) as exc:  # malformed JSON structure
-        msg = str(exc).splitlines()[0] if str(exc) else ""
-        raise InputError(f"malformed glTF ({type(exc).__name__}{': ' + msg if msg else ''})", path) from None
 
 
 def _load_gltf_skin(path: Path, skin: int | None, geometry: bool) -> GltfSkin:
@@ -427,6 +451,8 @@ def _load_gltf_skin(path: Path, skin: int | None, geometry: bool) -> GltfSkin:
         reader.fail(f"skin {skin_index} refers to a joint node that does not exist")
     if np.unique(joint_nodes).size != joint_nodes.size:
         reader.fail(f"skin {skin_index} lists a joint node twice")
+    if joint_nodes.size > MAX_JOINTS:
+        reader.fail(f"skin {skin_index} has {joint_nodes.size} joints, more than the {MAX_JOINTS} a skeleton may have")
     n_joints = joint_nodes.size
     ibm_index = get_field(skins[skin_index], "inverseBindMatrices")
     if ibm_index is None:
@@ -441,11 +467,9 @@ def _load_gltf_skin(path: Path, skin: int | None, geometry: bool) -> GltfSkin:
             reader.fail(f"skin {skin_index}: non-finite inverse bind matrices")
         inverse_bind = inverse_bind.copy()
         inverse_bind[:, 3, :] = [0.0, 0.0, 0.0, 1.0]  # affine by definition; clears float noise
-        dets = np.linalg.det(inverse_bind[:, :3, :3])
-        if np.any(np.abs(dets) < 1e-12 * np.max(np.abs(inverse_bind[:, :3, :3]), axis=(1, 2)) ** 3):
-            reader.fail(f"skin {skin_index}: singular inverse bind matrix (joint {int(np.argmin(np.abs(dets)))})")
+        _check_invertible(inverse_bind, f"skin {skin_index}", reader)
     names = unique_names([get_field(nodes[int(n)], "name") for n in joint_nodes])
-    parents = _skeleton_parents(joint_nodes, node_parents, node_depth)
+    parents = _skeleton_parents(joint_nodes, node_parents, node_depth, node_order)
     infos, channels = read_animations(doc, reader, len(nodes))
     positions = faces = joints = weights = None
     mesh_node = None
