@@ -263,24 +263,34 @@ def search_poses(
 
     refine_all = jax.jit(lambda poses, s, y: jax.lax.map(lambda p: refine(p, s, y), poses))
     has_child = np.bincount(np.asarray(skeleton.parents)[1:], minlength=skeleton.n_joints) > 0
+    n_hyp = max([chain_hypotheses(skeleton, j)[0].shape[0] for j in range(skeleton.n_joints) if has_child[j]] or [1])
     results = []
     for target_vertices in target_candidates:
         y_coarse = surface_diracs(target_vertices, target_faces, n_search, seed + 3)
         y_fine = surface_diracs(target_vertices, target_faces, n_refine, seed + 5)
-        beams = Pose(rest.rotations[None], rest.translation[None])
-        n_scored = 1
+        # shapes held constant (beam rows, n_hyp hypotheses; padding scored +inf) so that every
+        # joint and every candidate placement runs one compiled expand / refine / score
+        beams = Pose(jnp.repeat(rest.rotations[None], beam, 0), jnp.repeat(rest.translation[None], beam, 0))
+        n_real, n_scored = 1, 1
         for level in skeleton.levels if discrete else ():
             for j in level:
                 j = int(j)
                 if not has_child[j] or (skeleton.parents[j] < 0 and not root_turns):
                     continue
                 hyp, hyp_child, c = chain_hypotheses(skeleton, j)
+                n_h = hyp.shape[0]
+                pad = np.tile([1.0, 0.0, 0.0, 0.0], (n_hyp - n_h, 1))
+                hyp, hyp_child = np.concatenate([hyp, pad]), np.concatenate([hyp_child, pad])
                 cand, s = expand(
                     beams.rotations, beams.translation, jnp.asarray(hyp, dt), jnp.asarray(hyp_child, dt), j, c, y_coarse
                 )
-                s = np.asarray(s)
-                n_scored += s.shape[0]
-                keep = np.argsort(s, kind="stable")[:beam]
+                s = np.array(s, np.float64).reshape(beam, n_hyp)
+                s[n_real:], s[:, n_h:] = np.inf, np.inf
+                s = s.ravel()
+                n_scored += n_real * n_h
+                keep = np.argsort(s, kind="stable")[: min(beam, n_real * n_h)]
+                keep = np.concatenate([keep, np.repeat(keep[:1], beam - keep.size)])  # pad with the best
+                n_real = min(beam, n_real * n_h)
                 beams = Pose(cand.rotations[keep], cand.translation[keep])
         candidates = Pose(
             jnp.concatenate([beams.rotations, rest.rotations[None]]),
@@ -288,12 +298,10 @@ def search_poses(
         )
         for sigma in sigmas_refine:
             candidates = refine_all(candidates, float(sigma), y_fine)
-        final = np.asarray(score_fine(candidates, float(sigmas_refine[-1]), y_fine))
-        rest_score = float(
-            np.asarray(
-                score_fine(Pose(rest.rotations[None], rest.translation[None]), float(sigmas_refine[-1]), y_fine)
-            )[0]
-        )
+        final = np.array(score_fine(candidates, float(sigmas_refine[-1]), y_fine), np.float64)
+        final[n_real:beam] = np.inf  # copies
+        rests = Pose(jnp.repeat(rest.rotations[None], beam + 1, 0), jnp.repeat(rest.translation[None], beam + 1, 0))
+        rest_score = float(np.asarray(score_fine(rests, float(sigmas_refine[-1]), y_fine))[0])
         best = int(np.argmin(final))
         if final[best] >= rest_score:
             results.append(PoseSearchResult(rest, rest_score, rest_score, n_scored))
