@@ -98,8 +98,10 @@ def test_placement_candidates_start_with_the_target_as_given_and_include_the_tru
     np.testing.assert_array_equal(cands[0].rotation, np.eye(3))
     np.testing.assert_array_equal(cands[0].translation, np.zeros(3))
     rots = [Rotation.from_matrix(c.rotation) for c in cands]
-    # one of them undoes the turn (to the refinement's accuracy; a body is not a rigid fit of itself)
-    assert min(np.degrees((r * turn).magnitude()) for r in rots[1:]) < 10.0
+    # one of them is the rigid fit of the unturned target composed with the undone turn (the rigid fit
+    # of an articulated pair is itself ~20° off the identity: the limbs pull it)
+    ref = Rotation.from_matrix(place_target(s, fs, t, ft).rotation)
+    assert min(np.degrees((r * turn * ref.inv()).magnitude()) for r in rots[1:]) < 5.0
     # and they are distinct
     for i in range(len(rots)):
         for j in range(i):
