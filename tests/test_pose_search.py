@@ -86,6 +86,7 @@ def test_chain_hypotheses_pair_each_bend_with_the_next_joint_in_both_senses():
     # joint 3 has two children, and the children of 3 move nothing: single hypotheses only
     hj3, hc3, c3 = chain_hypotheses(skel, 3)
     assert c3 == 3 and hj3.shape == (18, 4)
+    assert np.all(np.isfinite(hj3))  # its children's mean direction is zero: the first child's bone is used
     np.testing.assert_allclose(hc3, np.tile([1.0, 0, 0, 0], (18, 1)))
 
 

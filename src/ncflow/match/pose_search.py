@@ -79,7 +79,10 @@ class PoseSearchResult:
 
 def _bend_axes(skeleton: Skeleton, joint: int):
     children = np.flatnonzero(np.asarray(skeleton.parents) == joint)
-    d = np.asarray(skeleton.positions)[children].mean(0) - np.asarray(skeleton.positions)[joint]
+    pos = np.asarray(skeleton.positions)
+    d = pos[children].mean(0) - pos[joint]
+    if np.linalg.norm(d) < 1e-6 * max(np.linalg.norm(pos[children[0]] - pos[joint]), 1e-12):
+        d = pos[children[0]] - pos[joint]  # children on opposite sides (a pelvis): the first child's bone
     a = d / max(np.linalg.norm(d), 1e-12)
     u = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
     u /= np.linalg.norm(u)
