@@ -57,9 +57,9 @@ def result():
 def test_outputs_are_at_full_resolution_and_consistent_with_the_full_meshes(result):
     m, res = result
     src, tgt = m.problem.source, m.problem.target
-    assert m.problem.working_vertices.shape[0] < 0.35 * src.n_vertices
+    assert m.problem.working.vertices.shape[0] < 0.35 * src.n_vertices
     assert res.metrics["n_source_vertices"] == src.n_vertices
-    assert res.metrics["n_working_vertices"] == m.problem.working_vertices.shape[0]
+    assert res.metrics["n_working_vertices"] == m.problem.working.vertices.shape[0]
     maps = res.maps
     assert maps["p2p_src_to_tgt"].shape == (src.n_vertices,)
     assert maps["p2p_tgt_to_src"].shape == (tgt.n_vertices,)
@@ -80,8 +80,8 @@ def test_full_flow_reproduces_the_working_flow_at_shared_vertices(result):
     """The field is trained on the working vertices; flowed at full resolution, the vertices the two
     meshes share land exactly where the working mesh's do."""
     m, res = result
-    kept = m.problem.working_kept
-    working_user = m.problem.normalization.invert(m.problem.working_vertices)
+    kept = m.problem.working.kept
+    working_user = m.problem.normalization.invert(m.problem.working.vertices)
     np.testing.assert_allclose(working_user, m.problem.source.vertices[kept], atol=1e-12)
     np.testing.assert_allclose(res.flow(working_user), res.deformed_source[kept], atol=1e-5)
     assert np.linalg.norm(res.deformed_source - m.problem.source.vertices, axis=1).max() > 0.3  # it moved

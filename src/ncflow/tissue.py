@@ -45,6 +45,7 @@ import os
 import sys
 import tempfile
 import time
+from pathlib import Path
 from typing import NamedTuple
 
 import jax
@@ -431,12 +432,21 @@ def tissue_centroids(
                 pass
         c, info = _tetrahedralise(vertices, faces, tc, {"cached": False})
         try:
-            with atomic_path(path) as tmp:  # a reader without the lock never sees a half-written entry
-                np.savez(tmp, centroids=c)
+            write_tissue_file(path, c)
             info["cache_file"] = str(path)
         except OSError:
             pass
         return c, info
+
+
+def write_tissue_file(path, centroids: np.ndarray) -> None:
+    """Write centroids as a tissue file (``.npz`` with ``centroids``; read by :func:`load_tissue_file`),
+    atomically: a reader never sees a half-written file.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp:
+        np.savez(tmp, centroids=centroids)
 
 
 def _tetrahedralise(vertices, faces, tc, info: dict) -> tuple[np.ndarray, dict]:

@@ -512,37 +512,30 @@ def share_tissues(tasks: list[RunTask], out: Path, log: Callable[[str], None] = 
     uses it at that exact tissue (``tissue.file``), so methods and ``--jobs`` see the same tetrahedra
     (fTetWild is not deterministic). The tissues go to ``out/tissue/<sha256>.npz``.
     """
-    from ncflow.geometry.decimate import decimate
-    from ncflow.geometry.normalize import fit_normalization
-    from ncflow.io.atomic import atomic_path
     from ncflow.io.meshes import load_mesh
-    from ncflow.tissue import tissue_centroids
+    from ncflow.match.prepare import source_tissue, uses_tissue, working_source
+    from ncflow.tissue import write_tissue_file
 
     done: dict = {}
     shared = []
     for task in tasks:
         cfg = task.config
-        if cfg.sampling.tissue_samples <= 0 or cfg.weights.tissue <= 0 or cfg.tissue.file:
+        if not uses_tissue(cfg) or cfg.tissue.file:
             shared.append(task)
             continue
-        key = (task.pair.source, cfg.tissue.edge_length_fac, cfg.tissue.epsilon, cfg.tissue.split_passes)
-        key += (cfg.working_vertices,)
+        t = cfg.tissue
+        key = (task.pair.source, t.edge_length_fac, t.epsilon, t.split_passes, cfg.working_vertices)
         if key not in done:
-            src = load_mesh(task.pair.source)
-            v = fit_normalization(src.vertices, src.faces).apply(src.vertices)
-            work = decimate(v, src.faces, cfg.working_vertices or src.n_vertices)
-            c, info = tissue_centroids(work.vertices, work.faces, cfg.tissue)
-            path = out / "tissue" / f"{info.get('sha256') or hashlib.sha256(c.tobytes()).hexdigest()}.npz"
+            _, _, work = working_source(load_mesh(task.pair.source), cfg)
+            c, info = source_tissue(work, cfg)
+            path = out / "tissue" / f"{info['sha256']}.npz"
             if not path.exists():
-                path.parent.mkdir(parents=True, exist_ok=True)
-                with atomic_path(path) as tmp:
-                    import numpy as np
-
-                    np.savez(tmp, centroids=c)
+                write_tissue_file(path, c)
             log(f"tissue of {Path(task.pair.source).name}: {c.shape[0]} samples, shared by its runs ({path.name[:12]})")
             done[key] = str(path)
-        tissue = dataclasses.replace(cfg.tissue, file=done[key])
-        shared.append(dataclasses.replace(task, config=dataclasses.replace(cfg, tissue=tissue)))
+        shared.append(
+            dataclasses.replace(task, config=dataclasses.replace(cfg, tissue=dataclasses.replace(t, file=done[key])))
+        )
     return shared
 
 

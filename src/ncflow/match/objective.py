@@ -118,8 +118,8 @@ class Arrays:
     def from_problem(cls, problem: Problem) -> Arrays:
         """Training-dtype copies of a :class:`~ncflow.match.prepare.Problem`'s arrays (the working source)."""
         return cls(
-            source=jnp.asarray(problem.working_vertices, DTYPE),
-            faces=np.asarray(problem.working_faces),
+            source=jnp.asarray(problem.working.vertices, DTYPE),
+            faces=np.asarray(problem.working.faces),
             topology=problem.source_topology,
             edges=jnp.asarray(problem.source_topology.edges),
             centroids=jnp.asarray(problem.centroids, DTYPE),

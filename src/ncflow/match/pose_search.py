@@ -266,35 +266,36 @@ def search_poses(
 
     refine_all = jax.jit(lambda poses, s, y: jax.lax.map(lambda p: refine(p, s, y), poses))
     has_child = np.bincount(np.asarray(skeleton.parents)[1:], minlength=skeleton.n_joints) > 0
-    n_hyp = max([chain_hypotheses(skeleton, j)[0].shape[0] for j in range(skeleton.n_joints) if has_child[j]] or [1])
+    searched = [
+        (int(j), *chain_hypotheses(skeleton, int(j)))
+        for level in (skeleton.levels if discrete else ())
+        for j in level
+        if has_child[j] and (skeleton.parents[j] >= 0 or root_turns)
+    ]
+    # shapes held constant (beam rows, n_hyp hypotheses; padding scored +inf) so that every joint and
+    # every candidate placement runs one compiled expand / refine / score
+    n_hyp = max([h.shape[0] for _, h, _, _ in searched] or [1])
+
+    def padded(q):
+        return jnp.asarray(np.vstack([q, np.tile([1.0, 0.0, 0.0, 0.0], (n_hyp - q.shape[0], 1))]), dt)
+
+    searched = [(j, h.shape[0], padded(h), padded(hc), c) for j, h, hc, c in searched]
     results = []
     for target_vertices in target_candidates:
         y_coarse = surface_diracs(target_vertices, target_faces, n_search, seed + 3)
         y_fine = surface_diracs(target_vertices, target_faces, n_refine, seed + 5)
-        # shapes held constant (beam rows, n_hyp hypotheses; padding scored +inf) so that every
-        # joint and every candidate placement runs one compiled expand / refine / score
         beams = Pose(jnp.repeat(rest.rotations[None], beam, 0), jnp.repeat(rest.translation[None], beam, 0))
         n_real, n_scored = 1, 1
-        for level in skeleton.levels if discrete else ():
-            for j in level:
-                j = int(j)
-                if not has_child[j] or (skeleton.parents[j] < 0 and not root_turns):
-                    continue
-                hyp, hyp_child, c = chain_hypotheses(skeleton, j)
-                n_h = hyp.shape[0]
-                pad = np.tile([1.0, 0.0, 0.0, 0.0], (n_hyp - n_h, 1))
-                hyp, hyp_child = np.concatenate([hyp, pad]), np.concatenate([hyp_child, pad])
-                cand, s = expand(
-                    beams.rotations, beams.translation, jnp.asarray(hyp, dt), jnp.asarray(hyp_child, dt), j, c, y_coarse
-                )
-                s = np.array(s, np.float64).reshape(beam, n_hyp)
-                s[n_real:], s[:, n_h:] = np.inf, np.inf
-                s = s.ravel()
-                n_scored += n_real * n_h
-                keep = np.argsort(s, kind="stable")[: min(beam, n_real * n_h)]
-                keep = np.concatenate([keep, np.repeat(keep[:1], beam - keep.size)])  # pad with the best
-                n_real = min(beam, n_real * n_h)
-                beams = Pose(cand.rotations[keep], cand.translation[keep])
+        for j, n_h, hyp, hyp_child, c in searched:
+            cand, s = expand(beams.rotations, beams.translation, hyp, hyp_child, j, c, y_coarse)
+            s = np.array(s, np.float64).reshape(beam, n_hyp)
+            s[n_real:], s[:, n_h:] = np.inf, np.inf
+            s = s.ravel()
+            n_scored += n_real * n_h
+            keep = np.argsort(s, kind="stable")[: min(beam, n_real * n_h)]
+            keep = np.concatenate([keep, np.repeat(keep[:1], beam - keep.size)])  # pad with the best
+            n_real = min(beam, n_real * n_h)
+            beams = Pose(cand.rotations[keep], cand.translation[keep])
         candidates = Pose(
             jnp.concatenate([beams.rotations, rest.rotations[None]]),
             jnp.concatenate([beams.translation, rest.translation[None]]),

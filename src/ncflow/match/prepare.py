@@ -15,10 +15,10 @@ import time
 
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Float, Int
+from jaxtyping import Float
 
 from ncflow.errors import InputError
-from ncflow.geometry.decimate import decimate
+from ncflow.geometry.decimate import Decimation, decimate
 from ncflow.geometry.mesh import Mesh
 from ncflow.geometry.normalize import Normalization, fit_normalization
 from ncflow.geometry.topology import Topology, mesh_topology
@@ -39,11 +39,9 @@ class Problem:
         source, target, skeleton: the inputs as given (user coordinates).
         normalization: the similarity applied to all three.
         source_vertices: (V, 3) normalised source vertices (float64), full resolution.
-        working_vertices: (n, 3) the normalised source the training runs on: the source itself, or
-            a decimated copy of it when it has more than ``working_vertices`` vertices
-            (:func:`~ncflow.geometry.decimate.decimate`), made of source vertices.
-        working_faces: (m, 3) its triangles.
-        working_kept: (n,) index of each working vertex in the source.
+        working: the normalised source the training runs on (:func:`working_source`): the source
+            itself, or a decimated copy made of source vertices when it has more than
+            ``working_vertices`` vertices.
         target_vertices: (W, 3) normalised target vertices, placed on the source (float64).
         placement: the rigid motion that placed them (:mod:`ncflow.match.placement`).
         skeleton_normalized: the skeleton in normalised coordinates.
@@ -65,9 +63,7 @@ class Problem:
     skeleton: Skeleton
     normalization: Normalization
     source_vertices: Float[np.ndarray, "V 3"]
-    working_vertices: Float[np.ndarray, "n 3"]
-    working_faces: Int[np.ndarray, "m 3"]
-    working_kept: Int[np.ndarray, " n"]
+    working: Decimation
     target_vertices: Float[np.ndarray, "W 3"]
     placement: Placement
     skeleton_normalized: Skeleton
@@ -87,6 +83,37 @@ class Problem:
 def skinning_width(config, skeleton: Skeleton) -> float:
     """τ of the skeleton-driven field's bone weights: ``flow.skinning_width`` × the median bone length."""
     return config.flow.skinning_width * float(np.median(skeleton.bone_lengths))
+
+
+def uses_tissue(config) -> bool:
+    """Whether the configuration trains with the soft-tissue term (samples and weight both on)."""
+    return config.sampling.tissue_samples > 0 and config.weights.tissue > 0
+
+
+def working_source(src: Mesh, config, message=lambda text: None) -> tuple[Normalization, np.ndarray, Decimation]:
+    """The source's normalisation, its (V, 3) normalised vertices and the working copy the training
+    runs on (:func:`~ncflow.geometry.decimate.decimate` to ``working_vertices``; the source itself
+    when it is not larger).
+    """
+    norm = fit_normalization(src.vertices, src.faces)
+    src_v = norm.apply(src.vertices)
+    if config.working_vertices is not None and src.n_vertices > config.working_vertices:
+        message(f"decimating the source to about {config.working_vertices} vertices for training ...")
+    return norm, src_v, decimate(src_v, src.faces, config.working_vertices or src.n_vertices)
+
+
+def source_tissue(work: Decimation, config, message=lambda text: None) -> tuple[np.ndarray, dict]:
+    """(K, 3) soft-tissue centroids of the working source and how they were obtained: none when the
+    tissue term is off, the exact tissue of ``tissue.file`` when one is given, else
+    :func:`~ncflow.tissue.tissue_centroids` (cached).
+    """
+    if not uses_tissue(config):
+        return np.zeros((0, 3)), {"disabled": True}
+    if config.tissue.file:
+        c = load_tissue_file(config.tissue.file, work.vertices)
+        return c, {"file": config.tissue.file, "n_centroids": int(c.shape[0]), "sha256": centroids_digest(c)}
+    message("tetrahedralising the source for soft-tissue samples ...")
+    return tissue_centroids(work.vertices, work.faces, config.tissue)
 
 
 def place_and_pose(src_v, src_f, tgt_v, tgt_f, skeleton: Skeleton, config, message=lambda text: None):
@@ -165,36 +192,22 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Prob
     warnings = check_skeleton_placement(skel, src)
     for w in warnings:
         message(f"warning: {w}")
-    norm = fit_normalization(src.vertices, src.faces)
-    src_v = norm.apply(src.vertices)
+    norm, src_v, work = working_source(src, config, message)
     skel_n = skel.with_positions(norm.apply(skel.positions))
     tgt_v = norm.apply(tgt.vertices)
-    if config.working_vertices is not None and src.n_vertices > config.working_vertices:
-        message(f"decimating the source to about {config.working_vertices} vertices for training ...")
-    work = decimate(src_v, src.faces, config.working_vertices or src.n_vertices)
     placement, search, trials, t_place, t_search = place_and_pose(
         work.vertices, work.faces, tgt_v, tgt.faces, skel_n, config, message
     )
     tgt_v = placement.apply(tgt_v)
     t0 = time.perf_counter()
-    if config.sampling.tissue_samples > 0 and config.weights.tissue > 0 and config.tissue.file:
-        centroids = load_tissue_file(config.tissue.file, work.vertices)
-        tissue_info = {"file": config.tissue.file, "n_centroids": int(centroids.shape[0])}
-        tissue_info["sha256"] = centroids_digest(centroids)
-    elif config.sampling.tissue_samples > 0 and config.weights.tissue > 0:
-        message("tetrahedralising the source for soft-tissue samples ...")
-        centroids, tissue_info = tissue_centroids(work.vertices, work.faces, config.tissue)
-    else:
-        centroids, tissue_info = np.zeros((0, 3)), {"disabled": True}
+    centroids, tissue_info = source_tissue(work, config, message)
     return Problem(
         source=src,
         target=tgt,
         skeleton=skel,
         normalization=norm,
         source_vertices=src_v,
-        working_vertices=work.vertices,
-        working_faces=work.faces,
-        working_kept=work.kept,
+        working=work,
         target_vertices=tgt_v,
         placement=placement,
         skeleton_normalized=skel_n,
