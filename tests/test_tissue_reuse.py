@@ -79,6 +79,9 @@ def test_tissue_file_is_checked(tmp_path, surface):
         np.savez(tmp_path / name, centroids=arr)
         with pytest.raises(InputError, match=name):
             tissue_mod.load_tissue_file(tmp_path / name, v)
+    (tmp_path / "junk.npz").write_bytes(b"PK\x03\x04 not an archive")
+    with pytest.raises(InputError, match="junk.npz"):
+        tissue_mod.load_tissue_file(tmp_path / "junk.npz", v)
     np.savez(tmp_path / "other.npz", points=np.zeros((5, 3)))
     with pytest.raises(InputError, match="centroids"):
         tissue_mod.load_tissue_file(tmp_path / "other.npz", v)
