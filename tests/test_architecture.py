@@ -5,7 +5,7 @@
    imports are resolved, and each import of another ncflow package must respect the layers
 
        geometry (0) <- io (1) <- {measures, skeleton, flow, tissue, losses, optim, config} (2)
-                    <- {match, synthetic} (3) <- evaluate (4) <- cli (5)
+                    <- {match, synthetic} (3) <- evaluate (4) <- reuse (5) <- cli (6)
 
    A package imports only packages of lower layers; packages of one layer do not import each other except
    the few edges of ``SAME_LAYER_ALLOWED`` (each with its reason). ``synthetic`` imports only geometry, io,
@@ -47,7 +47,8 @@ LAYERS = {
     "match": 3,
     "synthetic": 3,
     "evaluate": 4,
-    "cli": 5,
+    "reuse": 5,
+    "cli": 6,
 }
 ROOT = "ncflow"  # the root package, ncflow/__init__.py
 UNRESTRICTED = {ROOT, "__main__"}  # the public surface and `python -m ncflow` may import anything
@@ -231,7 +232,7 @@ def test_scan_sees_function_local_and_type_checking_imports(tmp_path, monkeypatc
     assert verdicts[6, None] is None and verdicts[6, "__version__"] is None  # errors, and the version
     assert "root package" in verdicts[6, "Mesh"]
     assert "`geometry` (layer 0) imports `match` (layer 3)" in verdicts[3, None]
-    assert "`geometry` (layer 0) imports `cli` (layer 5)" in verdicts[5, None]
+    assert "`geometry` (layer 0) imports `cli` (layer 6)" in verdicts[5, None]
     assert "`geometry` (layer 0) imports `io` (layer 1)" in verdicts[8, None]
 
 

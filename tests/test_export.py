@@ -229,6 +229,8 @@ def _result_inputs(sphere, k: int = 5) -> dict:
         skeleton_target=skel_rest.with_positions(sk_frames[-1]),
         skeleton_frames=sk_frames,
         metrics=metrics,
+        target_vertices=tv,
+        target_faces=tf,
     ), tv
 
 
@@ -304,6 +306,25 @@ def test_write_then_read_result(tmp_path, sphere):
     np.testing.assert_array_equal(r["source_faces"], faces)
     assert r["skeleton_target"].n_joints == 4 and r["skeleton_frames"]["positions"].shape == (k, 4, 3)
     assert r["metrics"]["seed"] == 7
+    np.testing.assert_allclose(r["target_vertices"], tv, atol=1e-6)
+    np.testing.assert_array_equal(r["target_faces"], inputs["target_faces"])
+
+
+def test_result_without_target_mesh_reads_as_none(tmp_path, sphere):
+    inputs, _ = _result_inputs(sphere, k=2)
+    inputs.update(target_vertices=None, target_faces=None)
+    out = write_result(tmp_path / "res", **inputs)
+    assert not (out / "target.ply").exists()
+    r = read_result(out)
+    assert r["target_vertices"] is None and r["target_faces"] is None
+
+
+def test_target_mesh_must_match_the_maps(tmp_path, sphere):
+    inputs, tv = _result_inputs(sphere, k=2)
+    inputs.update(target_vertices=tv[:-1])
+    with pytest.raises(ResultError, match="target has"):
+        write_result(tmp_path / "res", **inputs)
+    assert not (tmp_path / "res").exists()
 
 
 def test_result_without_skeleton(tmp_path, sphere):
@@ -367,6 +388,7 @@ def test_failure_mid_write_leaves_nothing(tmp_path, sphere, monkeypatch):
         write_result(tmp_path / "res", **inputs)
     # it did fail mid-write: the meshes, maps and frames were already staged
     staged = ["deformed_source.ply", "frames", "map_tgt_to_src.npz", "p2p_src_to_tgt.txt", "p2p_tgt_to_src.txt"]
+    staged = sorted([*staged, "target.ply"])
     assert calls[0] == staged
     assert not (tmp_path / "res").exists()
     assert list(tmp_path.iterdir()) == []

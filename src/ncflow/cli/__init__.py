@@ -13,7 +13,21 @@ import argparse
 import sys
 
 from ncflow import __version__
-from ncflow.cli import benchmark, demo, distance, evaluate, make_pairs, make_shape, match, pose, skeleton
+from ncflow.cli import (
+    batch,
+    benchmark,
+    demo,
+    distance,
+    evaluate,
+    make_pairs,
+    make_shape,
+    match,
+    pose,
+    rig,
+    skeleton,
+    transfer,
+    view,
+)
 from ncflow.errors import NcflowError, first_line
 
 __all__ = ["COMMANDS", "build_parser", "main"]
@@ -30,7 +44,21 @@ class Parser(argparse.ArgumentParser):
 
 
 # the command table, in the order ``ncflow --help`` lists them
-COMMANDS = (benchmark, demo, distance, evaluate, make_pairs, make_shape, match, pose, skeleton)
+COMMANDS = (
+    batch,
+    benchmark,
+    demo,
+    distance,
+    evaluate,
+    make_pairs,
+    make_shape,
+    match,
+    pose,
+    rig,
+    skeleton,
+    transfer,
+    view,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:

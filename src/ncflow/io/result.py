@@ -80,6 +80,7 @@ CONTRACT_FILES = (
     "skeleton_target.tgf",
     "skeleton_frames.json",
     "metrics.json",
+    "target.ply",
 )
 _FRAME_RE = re.compile(r"^frame_(\d{4,})\.ply$")
 
@@ -209,6 +210,8 @@ def write_result(
     parents: Int[np.ndarray, " J"] | None = None,
     joint_names: list[str] | tuple[str, ...] | None = None,
     metrics: dict | None = None,
+    target_vertices: Float[np.ndarray, "Vt 3"] | None = None,
+    target_faces: Int[np.ndarray, "Ft 3"] | None = None,
     overwrite: bool = False,
     clip_seconds: float = 2.0,
 ) -> Path:
@@ -231,6 +234,10 @@ def write_result(
             given they must equal the skeleton's).
         joint_names: joint names (default: the skeleton's, or null).
         metrics: JSON-serialisable dict (numpy/JAX scalars and arrays are converted).
+        target_vertices: (Vt, 3) the target mesh as given (user coordinates), written with
+            ``target_faces`` as ``target.ply`` so that the result folder alone serves ``ncflow view``,
+            ``transfer`` and ``rig``; Vt must equal the maps' n_target. Omitted: no ``target.ply``.
+        target_faces: (Ft, 3) the target's triangles (with ``target_vertices``).
         overwrite: allow an existing non-empty ``out_dir``: its contract entries are replaced
             (``frames/`` as a whole) and its other entries kept. Otherwise such a folder is refused.
         clip_seconds: length of the GLB animation clip.
@@ -271,6 +278,14 @@ def write_result(
     if nt == 0:
         raise ResultError("the correspondence maps are empty (no target vertices)")
     p2p_st = as_index(maps["p2p_src_to_tgt"], nv, nt, "p2p_src_to_tgt")
+    target = None
+    if (target_vertices is None) != (target_faces is None):
+        raise ResultError("target_vertices and target_faces must be given together")
+    if target_vertices is not None:
+        tv = as_frames(np.asarray(target_vertices)[None], "target vertices")[0]
+        if tv.shape[0] != nt:
+            raise ResultError(f"the target has {tv.shape[0]} vertices but the maps have {nt} target vertices")
+        target = (tv, as_faces(target_faces, nt, "target faces"))
     metrics = {} if metrics is None else metrics
     if not isinstance(metrics, dict):
         raise ResultError(f"metrics must be a dict, got {type(metrics).__name__}")
@@ -298,6 +313,8 @@ def write_result(
     tmp = staging_dir(out_dir)  # os.mkdir: the umask's mode, unlike mkdtemp's 0700
     try:
         save_mesh(tmp / "deformed_source.ply", deformed, faces)
+        if target is not None:
+            save_mesh(tmp / "target.ply", *target)
         _write_indices(tmp / "p2p_src_to_tgt.txt", p2p_st)
         _write_indices(tmp / "p2p_tgt_to_src.txt", p2p_ts)
         with atomic_path(tmp / "map_tgt_to_src.npz") as part:
@@ -408,8 +425,9 @@ def read_result(out_dir: str | os.PathLike, *, check_animation: bool = True) -> 
         ``p2p_tgt_to_src`` (Vt,), ``map_face`` (Vt,), ``map_bary`` (Vt, 3), ``frames`` (K, Vs, 3),
         ``frame_times`` (K,), ``metrics`` (dict), ``skeleton_target`` (Skeleton or None),
         ``skeleton_frames`` (dict of ``positions`` (K, J, 3), ``parents``, ``names``, ``times``, or
-        None), ``animation`` (path of the GLB), ``n_source``, ``n_target``, ``n_frames``.
-        The two skeleton files are optional but must come together.
+        None), ``animation`` (path of the GLB), ``n_source``, ``n_target``, ``n_frames``,
+        ``target_vertices`` (Vt, 3) and ``target_faces`` (Ft, 3) from ``target.ply`` (None for a result
+        written without it). The two skeleton files are optional but must come together.
 
     Raises:
         InputError: one line naming the missing or bad file.
@@ -491,7 +509,16 @@ def read_result(out_dir: str | os.PathLike, *, check_animation: bool = True) -> 
             )
         if not np.array_equal(sk_frames["parents"], skeleton.parents):
             raise InputError("parents differ from skeleton_target.tgf", sfj)
+    target_vertices = target_faces = None
+    target_path = out_dir / "target.ply"
+    if target_path.exists():
+        tm = _read_ply(target_path)
+        if tm.n_vertices != nt:
+            raise InputError(f"the target has {tm.n_vertices} vertices but the maps have {nt}", target_path)
+        target_vertices, target_faces = tm.vertices, tm.faces
     return {
+        "target_vertices": target_vertices,
+        "target_faces": target_faces,
         "deformed_source": deformed.vertices,
         "source_faces": faces,
         "p2p_src_to_tgt": p2p["p2p_src_to_tgt"],

@@ -102,6 +102,8 @@ class MatchResult:
             parents=self.skeleton.parents,
             joint_names=list(self.skeleton.names) if self.skeleton.names else None,
             metrics=self.metrics,
+            target_vertices=self.target.vertices,
+            target_faces=self.target.faces,
             overwrite=overwrite,
         )
 
