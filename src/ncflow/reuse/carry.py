@@ -15,11 +15,11 @@ __all__ = ["interpolate", "nearest_corner"]
 
 
 def interpolate(
-    values: Float[np.ndarray, "Vs *C"],
+    values: Float[np.ndarray, "Vs ..."],
     source_faces: Int[np.ndarray, "Fs 3"],
     face: Int[np.ndarray, " Vt"],
     bary: Float[np.ndarray, "Vt 3"],
-) -> Float[np.ndarray, "Vt *C"]:
+) -> Float[np.ndarray, "Vt ..."]:
     """Barycentric interpolation: (Vt, *C) = Σ_i bary[:, i] · values[faces[face, i]].
 
     Exact for any function linear on each source triangle (positions, linear fields).
