@@ -26,8 +26,13 @@ if TYPE_CHECKING:
     pass
 
 
-class _BinBuilder:
-    """Accumulates glTF bufferViews/accessors over one binary buffer (4-byte aligned)."""
+_WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
+
+
+class BinBuilder:
+    """Accumulates glTF bufferViews/accessors over one binary buffer (4-byte aligned); shared by the
+    morph-target writer and the rig writer.
+    """
 
     def __init__(self, gltf):
         self.gltf = gltf
@@ -37,6 +42,10 @@ class _BinBuilder:
     def add(
         self, array: np.ndarray, *, component: int, type_: str, target: int | None = None, minmax: bool = False
     ) -> int:
+        """Append ``array`` (its bytes, 4-byte aligned) as one bufferView and accessor of ``type_``
+        (SCALAR, VEC2/3/4, MAT4); ``minmax`` records the per-component bounds of the stored values.
+        Returns the accessor's index.
+        """
         import pygltflib
 
         data = np.ascontiguousarray(array).tobytes()
@@ -50,7 +59,7 @@ class _BinBuilder:
         self.gltf.bufferViews.append(view)
         self.chunks.append(data)
         self.size += len(data)
-        width = {"SCALAR": 1, "VEC3": 3}[type_]
+        width = _WIDTH[type_]
         acc = pygltflib.Accessor(
             bufferView=len(self.gltf.bufferViews) - 1,
             byteOffset=0,
@@ -60,17 +69,19 @@ class _BinBuilder:
         )
         if minmax:
             a = np.asarray(array).reshape(-1, width)
-            acc.min = [float(x) for x in a.min(0)]
-            acc.max = [float(x) for x in a.max(0)]
+            cast = int if a.dtype.kind in "iu" else float
+            acc.min = [cast(x) for x in a.min(0)]
+            acc.max = [cast(x) for x in a.max(0)]
         self.gltf.accessors.append(acc)
         return len(self.gltf.accessors) - 1
 
     def blob(self) -> bytes:
+        """The binary buffer, padded to a multiple of 4 bytes."""
         pad = (-self.size) % 4
         return b"".join(self.chunks) + b"\x00" * pad
 
 
-def _morph_primitive(builder: _BinBuilder, frames32: np.ndarray, indices: np.ndarray, mode: int, material: int | None):
+def _morph_primitive(builder: BinBuilder, frames32: np.ndarray, indices: np.ndarray, mode: int, material: int | None):
     import pygltflib
 
     base = frames32[0]
@@ -141,7 +152,7 @@ def write_animation_glb(
         t = (t - t[0]) * (duration / span) if span > 0 else t - t[0]
     gltf = pygltflib.GLTF2(asset=pygltflib.Asset(version="2.0", generator="ncflow"))
     gltf.buffers = [pygltflib.Buffer(byteLength=0)]
-    builder = _BinBuilder(gltf)
+    builder = BinBuilder(gltf)
     gltf.materials = [
         pygltflib.Material(
             name="surface",
