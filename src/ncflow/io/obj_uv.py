@@ -1,0 +1,189 @@
+"""Wavefront OBJ with face-varying texture coordinates (UVs): read and write, seams kept.
+
+A textured OBJ lists positions (``v x y z``), texture coordinates (``vt u v``) and triangles
+whose corners name both (``f v/vt v/vt v/vt``, or ``v/vt/vn``). One vertex may carry different
+UVs in different faces: that is a UV seam, and it must survive. :class:`TexturedMesh` therefore
+keeps the UVs per face corner (``uv_faces`` (F, 3) into ``uvs`` (T, 2)) and the vertices and
+faces exactly in the file's order.
+
+Written here rather than read through trimesh: trimesh keeps one UV per vertex (the UVs of a
+seam vertex are merged, or the vertex is split and the file's vertex order and count are lost),
+and the transfer needs the file's vertices and the corners' UVs as written. Everything else a
+textured OBJ may hold (normals, groups, materials, smoothing groups, lines, points) is skipped;
+no material library or texture is opened.
+
+Hostile files: the file size is limited (:data:`MAX_OBJ_BYTES`), faces must be triangles, every
+corner must name a texture coordinate, indices (1-based, or negative = relative to the end, as
+the format allows) must lie in range, and coordinates must be finite numbers. Each problem is one
+:class:`~ncflow.errors.InputError` line naming the file and the line.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from pathlib import Path
+
+import numpy as np
+from jaxtyping import Float, Int
+
+from ncflow.errors import InputError, first_line
+from ncflow.io.arrays import as_faces, check_finite
+from ncflow.io.atomic import atomic_write_text
+from ncflow.io.files import check_input_file
+
+MAX_OBJ_BYTES = 2**30
+"""Largest OBJ file read (1 GiB)."""
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class TexturedMesh:
+    """A triangle mesh with face-varying texture coordinates.
+
+    Attributes:
+        vertices: (V, 3) positions, in the file's order.
+        faces: (F, 3) 0-based vertex indices, in the file's order.
+        uvs: (T, 2) texture coordinates (u, v).
+        uv_faces: (F, 3) 0-based indices into ``uvs`` of every face corner.
+    """
+
+    vertices: Float[np.ndarray, "V 3"]
+    faces: Int[np.ndarray, "F 3"]
+    uvs: Float[np.ndarray, "T 2"]
+    uv_faces: Int[np.ndarray, "F 3"]
+
+
+def _numbers(tokens: list[str], lo: int, hi: int, lineno: int, what: str, path) -> list[float]:
+    """The first ``hi`` numbers of ``tokens`` (at least ``lo``), finite; InputError otherwise."""
+    if len(tokens) < lo:
+        raise InputError(f"line {lineno}: '{what}' needs at least {lo} numbers, got {len(tokens)}", path)
+    try:
+        values = [float(t) for t in tokens[:hi]]
+    except ValueError:
+        raise InputError(f"line {lineno}: '{what}' has a value that is not a number", path) from None
+    if not all(np.isfinite(values)):
+        raise InputError(f"line {lineno}: '{what}' has a NaN or infinite value", path)
+    return values
+
+
+def _index(token: str, count: int, lineno: int, what: str, path) -> int:
+    """A 1-based OBJ index as 0-based; a negative one counts back from the ``count`` items read so far.
+
+    The upper bound of positive indices is checked once the whole file is read.
+    """
+    try:
+        i = int(token)
+    except ValueError:
+        raise InputError(f"line {lineno}: {what} index {token[:40]!r} is not an integer", path) from None
+    k = i - 1 if i > 0 else count + i
+    if i == 0 or not 0 <= k < 2**40:
+        raise InputError(f"line {lineno}: {what} index {i} is out of range", path)
+    return k
+
+
+def _check_upper(index: np.ndarray, count: int, lines: list[int], what: str, path) -> None:
+    """InputError naming the first face line whose ``what`` index is at least ``count``."""
+    bad = np.any(index >= count, axis=1)
+    if np.any(bad):
+        k = int(np.argmax(bad))
+        raise InputError(
+            f"line {lines[k]}: {what} index {int(index[k].max()) + 1} is out of range (the file has {count} "
+            f"{what}s; {int(bad.sum())} faces affected)",
+            path,
+        )
+
+
+def read_obj_uv(path: str | os.PathLike) -> TexturedMesh:
+    """Read a triangle OBJ whose every face corner names a texture coordinate (``f v/vt ...``).
+
+    Returns:
+        The :class:`TexturedMesh`: vertices and faces in the file's order, the corners' UVs.
+
+    Raises:
+        InputError: one line naming the file (and the line): too large, not text, a polygon
+            that is not a triangle, a corner without a texture coordinate, an index out of range,
+            a non-number, NaN, no faces.
+    """
+    path = Path(path)
+    check_input_file(path, "textured mesh", (".obj",))
+    size = os.stat(path).st_size
+    if size > MAX_OBJ_BYTES:
+        raise InputError(f"is {size} bytes, more than the limit of {MAX_OBJ_BYTES}", path)
+    vertices: list[list[float]] = []
+    uvs: list[list[float]] = []
+    faces: list[list[int]] = []
+    uv_faces: list[list[int]] = []
+    face_lines: list[int] = []
+    try:
+        with open(path, encoding="utf-8", errors="strict") as fh:
+            for lineno, line in enumerate(fh, start=1):
+                tokens = line.split()
+                if not tokens or tokens[0].startswith("#"):
+                    continue
+                key = tokens[0]
+                if key == "v":
+                    vertices.append(_numbers(tokens[1:], 3, 3, lineno, "v", path))
+                elif key == "vt":
+                    uv = _numbers(tokens[1:], 1, 2, lineno, "vt", path)
+                    uvs.append(uv if len(uv) == 2 else [uv[0], 0.0])
+                elif key == "f":
+                    corners = tokens[1:]
+                    if len(corners) != 3:
+                        raise InputError(
+                            f"line {lineno}: a face with {len(corners)} corners; triangulate the mesh first", path
+                        )
+                    fv, ft = [], []
+                    for corner in corners:
+                        parts = corner.split("/")
+                        if len(parts) < 2 or not parts[1]:
+                            raise InputError(
+                                f"line {lineno}: face corner {corner[:40]!r} has no texture coordinate "
+                                "(every corner needs v/vt)",
+                                path,
+                            )
+                        fv.append(_index(parts[0], len(vertices), lineno, "vertex", path))
+                        ft.append(_index(parts[1], len(uvs), lineno, "texture coordinate", path))
+                    faces.append(fv)
+                    uv_faces.append(ft)
+                    face_lines.append(lineno)
+    except UnicodeDecodeError as exc:
+        raise InputError(f"cannot read text ({first_line(exc)[:80]})", path) from None
+    except OSError as exc:
+        raise InputError(f"cannot read file ({exc.strerror or first_line(exc)})", path) from None
+    if not faces:
+        raise InputError("no faces", path)
+    f, ft = np.asarray(faces, dtype=np.int64), np.asarray(uv_faces, dtype=np.int64)
+    _check_upper(f, len(vertices), face_lines, "vertex", path)
+    _check_upper(ft, len(uvs), face_lines, "texture coordinate", path)
+    return TexturedMesh(
+        vertices=np.asarray(vertices, dtype=np.float64).reshape(-1, 3),
+        faces=f,
+        uvs=np.asarray(uvs, dtype=np.float64).reshape(-1, 2),
+        uv_faces=ft,
+    )
+
+
+def write_obj_uv(
+    path: str | os.PathLike,
+    vertices: Float[np.ndarray, "V 3"],
+    faces: Int[np.ndarray, "F 3"],
+    uvs: Float[np.ndarray, "T 2"],
+    uv_faces: Int[np.ndarray, "F 3"],
+) -> None:
+    """Write a triangle OBJ with face-varying UVs (``f v/vt v/vt v/vt``), atomically.
+
+    Coordinates are written with 17 significant digits (they read back bit for bit).
+
+    Raises:
+        ResultError: non-finite coordinates or indices out of range (nothing is written).
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    t = np.asarray(uvs, dtype=np.float64)
+    check_finite("vertices", v)
+    check_finite("texture coordinates", t)
+    f = as_faces(faces, v.shape[0], "faces") + 1
+    ft = as_faces(uv_faces, t.shape[0], "texture-coordinate faces") + 1
+    lines = [f"v {x!r} {y!r} {z!r}" for x, y, z in v.tolist()]
+    lines += [f"vt {a!r} {b!r}" for a, b in t.tolist()]
+    lines += [f"f {a}/{p} {b}/{q} {c}/{r}" for (a, b, c), (p, q, r) in zip(f.tolist(), ft.tolist())]
+    atomic_write_text(path, "\n".join(lines) + "\n")
