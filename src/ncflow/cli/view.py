@@ -1,4 +1,4 @@
-"""``ncflow view`` (being written)."""
+"""``ncflow view``: one self-contained offline HTML page showing a result of ``ncflow match``."""
 
 from __future__ import annotations
 
@@ -6,9 +6,89 @@ import argparse
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("view", help="(being written)")
+    p = sub.add_parser(
+        "view",
+        help="write one offline HTML page showing a match result: source, animation, target, skeleton, colours",
+        description=(
+            "Write one self-contained HTML file (no network, no server; open it in any current browser) that "
+            "shows the source, the flowed source animated with a timeline slider and play/pause, and the target, "
+            "side by side or overlaid; the skeleton on or off; colours carried through the correspondence "
+            "(position colours or a checker); with --gt, the target coloured by its geodesic error on the "
+            "tau_max = 0.20 scale of docs/evaluation.md, with a colour bar. Meshes above --max-vertices are shown "
+            "decimated. The target is read from RESULT_DIR/target.ply (or --target for older results)."
+        ),
+    )
+    p.add_argument("result_dir", metavar="RESULT_DIR", help="folder written by ncflow match")
+    p.add_argument("--out", metavar="FILE", help="the HTML file (default RESULT_DIR/view.html)")
+    p.add_argument(
+        "--gt",
+        nargs="+",
+        metavar="GT",
+        help="ground truth for the error map: 'identity', a .vts/.txt/.npy/.npz file, or two .vts files with "
+        "--gt-format template",
+    )
+    p.add_argument(
+        "--gt-format",
+        choices=["identity", "vts", "index", "npz", "template"],
+        help="ground-truth format (default: from the suffix)",
+    )
+    p.add_argument("--target", metavar="MESH", help="the target mesh (default RESULT_DIR/target.ply)")
+    p.add_argument(
+        "--max-vertices",
+        type=int,
+        metavar="N",
+        help="show source and target decimated to about N vertices when larger (default 60000)",
+    )
+    p.add_argument("--max-frames", type=int, metavar="N", help="embed at most N frames, evenly chosen (default 100)")
+    p.add_argument("--title", help="title shown in the page (default: the folder's name)")
+    p.add_argument(
+        "--overwrite", action="store_true", help="replace an existing --out file that ncflow view did not write"
+    )
     p.set_defaults(func=run)
 
 
+def _gt_spec(values: list[str] | None, fmt: str | None):
+    from ncflow.errors import InputError
+
+    if values is None:
+        if fmt is not None:
+            raise InputError("--gt-format needs --gt")
+        return None
+    if len(values) == 2 and fmt == "template":
+        return tuple(values)
+    if len(values) != 1:
+        raise InputError(f"--gt takes one value (two only with --gt-format template), got {len(values)}")
+    return values[0]
+
+
 def run(args: argparse.Namespace) -> int:
-    raise NotImplementedError("ncflow view is being written")
+    import os
+    from pathlib import Path
+
+    from ncflow.cli.options import MiB, check_int, output_file
+    from ncflow.reuse.view import (
+        DEFAULT_MAX_DISPLAY_FRAMES,
+        DEFAULT_MAX_DISPLAY_VERTICES,
+        check_view_output,
+        write_view,
+    )
+
+    check_int(args.max_vertices, "--max-vertices", 100, 10**7)
+    check_int(args.max_frames, "--max-frames", 2, 10**5)
+    gt = _gt_spec(args.gt, args.gt_format)
+    out = Path(args.result_dir) / "view.html" if args.out is None else Path(args.out)
+    output_file(out, need_bytes=16 * MiB, option="--out")
+    check_view_output(out, args.overwrite)
+    path = write_view(
+        args.result_dir,
+        out,
+        gt=gt,
+        gt_format=args.gt_format,
+        target=args.target,
+        max_display_vertices=args.max_vertices or DEFAULT_MAX_DISPLAY_VERTICES,
+        max_display_frames=args.max_frames or DEFAULT_MAX_DISPLAY_FRAMES,
+        title=args.title,
+        overwrite=args.overwrite,
+    )
+    print(f"wrote {path} ({os.path.getsize(path) / 2**20:.1f} MiB); open it in a browser (works offline)")
+    return 0

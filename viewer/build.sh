@@ -1,0 +1,25 @@
+#!/bin/sh
+# Bundle the viewer (src/main.js + three.js) into the one minified script that the Python package
+# ships: ../src/ncflow/reuse/assets/viewer.js, plus three.js's licence beside it.
+# Run from this folder after `npm ci` (pinned versions in package-lock.json): `npm run build`.
+set -eu
+cd "$(dirname "$0")"
+ASSETS=../src/ncflow/reuse/assets
+mkdir -p "$ASSETS"
+./node_modules/.bin/esbuild src/main.js \
+  --bundle --minify --format=iife --target=es2020 --platform=browser \
+  --legal-comments=eof --charset=ascii --log-level=warning \
+  --outfile="$ASSETS/viewer.js"
+THREE_VERSION=$(node -p "require('./node_modules/three/package.json').version")
+{
+  echo "Third-party software bundled in viewer.js (the page script of \`ncflow view\`)"
+  echo
+  echo "three.js $THREE_VERSION (https://threejs.org), MIT licence:"
+  echo
+  cat node_modules/three/LICENSE
+} > "$ASSETS/THIRD_PARTY_LICENSES.txt"
+if grep -qi "</script" "$ASSETS/viewer.js"; then
+  echo "build.sh: the bundle contains '</script' and cannot be inlined in a page" >&2
+  exit 1
+fi
+ls -l "$ASSETS/viewer.js"
