@@ -13,6 +13,7 @@ from ncflow.geometry.mesh import Mesh
 from ncflow.geometry.normalize import fit_normalization
 from ncflow.geometry.topology import mesh_topology
 from ncflow.io.meshes import load_mesh, save_mesh
+from ncflow.io.result import read_result
 from ncflow.match import Matcher, MatchResult, TrainingError
 from ncflow.measures import (
     compress_normal_cycle,
@@ -22,6 +23,7 @@ from ncflow.measures import (
     varifold,
     varifold_distance,
 )
+from ncflow.reuse import rig_result, transfer, transfer_skin_weights, write_view
 from ncflow.skeleton import Skeleton, load_skeleton, save_skeleton
 
 __all__ = [
@@ -45,8 +47,13 @@ __all__ = [
     "normal_cycle",
     "normal_cycle_distance",
     "preset",
+    "read_result",
+    "rig_result",
     "save_mesh",
     "save_skeleton",
+    "transfer",
+    "transfer_skin_weights",
     "varifold",
     "varifold_distance",
+    "write_view",
 ]
