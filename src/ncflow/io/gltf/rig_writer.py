@@ -37,7 +37,7 @@ from jaxtyping import Float, Int
 from ncflow.errors import ResultError
 from ncflow.io.arrays import as_faces, as_times
 from ncflow.io.atomic import atomic_path
-from ncflow.io.gltf.writer import BinBuilder
+from ncflow.io.gltf.writer import new_document
 
 __all__ = ["MAX_RIG_JOINTS", "write_rig_glb"]
 
@@ -164,18 +164,7 @@ def write_rig_glb(
     w32[rows, big] = 0.0
     w32[rows, big] = np.maximum(f32(1.0) - w32.sum(1, dtype=f32), f32(0.0))
 
-    gltf = pygltflib.GLTF2(asset=pygltflib.Asset(version="2.0", generator="ncflow rig"))
-    gltf.buffers = [pygltflib.Buffer(byteLength=0)]
-    builder = BinBuilder(gltf)
-    gltf.materials = [
-        pygltflib.Material(
-            name="skin",
-            doubleSided=True,
-            pbrMetallicRoughness=pygltflib.PbrMetallicRoughness(
-                baseColorFactor=[0.8, 0.8, 0.8, 1.0], metallicFactor=0.0, roughnessFactor=0.8
-            ),
-        )
-    ]
+    gltf, builder = new_document("ncflow rig", "skin")
     attrs = pygltflib.Attributes(
         POSITION=builder.add(v32, component=pygltflib.FLOAT, type_="VEC3", target=pygltflib.ARRAY_BUFFER, minmax=True),
         NORMAL=builder.add(

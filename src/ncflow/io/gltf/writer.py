@@ -81,6 +81,26 @@ class BinBuilder:
         return b"".join(self.chunks) + b"\x00" * pad
 
 
+def new_document(generator: str, material: str):
+    """An empty glTF 2.0 document with one buffer and one grey double-sided material (index 0),
+    and the :class:`BinBuilder` that fills its buffer; returns ``(gltf, builder)``.
+    """
+    import pygltflib
+
+    gltf = pygltflib.GLTF2(asset=pygltflib.Asset(version="2.0", generator=generator))
+    gltf.buffers = [pygltflib.Buffer(byteLength=0)]
+    gltf.materials = [
+        pygltflib.Material(
+            name=material,
+            doubleSided=True,
+            pbrMetallicRoughness=pygltflib.PbrMetallicRoughness(
+                baseColorFactor=[0.8, 0.8, 0.8, 1.0], metallicFactor=0.0, roughnessFactor=0.8
+            ),
+        )
+    ]
+    return gltf, BinBuilder(gltf)
+
+
 def _morph_primitive(builder: BinBuilder, frames32: np.ndarray, indices: np.ndarray, mode: int, material: int | None):
     import pygltflib
 
@@ -150,18 +170,7 @@ def write_animation_glb(
             raise ResultError(f"clip duration must be a positive number of seconds, got {duration}")
         span = t[-1] - t[0]
         t = (t - t[0]) * (duration / span) if span > 0 else t - t[0]
-    gltf = pygltflib.GLTF2(asset=pygltflib.Asset(version="2.0", generator="ncflow"))
-    gltf.buffers = [pygltflib.Buffer(byteLength=0)]
-    builder = BinBuilder(gltf)
-    gltf.materials = [
-        pygltflib.Material(
-            name="surface",
-            doubleSided=True,
-            pbrMetallicRoughness=pygltflib.PbrMetallicRoughness(
-                baseColorFactor=[0.8, 0.8, 0.8, 1.0], metallicFactor=0.0, roughnessFactor=0.8
-            ),
-        )
-    ]
+    gltf, builder = new_document("ncflow", "surface")
     prim = _morph_primitive(builder, frames.astype(np.float32), faces, pygltflib.TRIANGLES, material=0)
     gltf.meshes = [pygltflib.Mesh(name=name, primitives=[prim], weights=[0.0] * k)]
     gltf.nodes = [pygltflib.Node(name=name, mesh=0)]
