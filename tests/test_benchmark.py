@@ -1,15 +1,14 @@
 """``ncflow benchmark``: a two-pair run on tiny capsule pairs, interruption and resume, the report."""
 
 import json
-import tempfile
 
-import jax
 import numpy as np
 import pytest
 from matplotlib.image import imread
 
 import ncflow.evaluate.benchmark as bench
-from ncflow.cli import main
+from ncflow.cli import build_parser, main
+from ncflow.cli.options import config_from_args
 from ncflow.config import preset
 from ncflow.evaluate import ground_truth_from_vertex_map
 from ncflow.evaluate.aggregate import aggregate_rows, mean_curve_band
@@ -45,22 +44,12 @@ TINY = [
 ]
 
 
-@pytest.fixture(scope="module", autouse=True)
-def compilation_cache():
-    """Both pairs share their source, so the second pair's training step compiles to the same program:
-    a temporary persistent compilation cache turns its ~20 s compile into a cache hit. The session's
-    cache state is restored afterwards (reset, previous settings)."""
-    from jax.experimental.compilation_cache import compilation_cache
-
-    keys = ("jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs")
-    old = {k: getattr(jax.config, k) for k in keys}
-    compilation_cache.reset_cache()
-    jax.config.update(keys[0], tempfile.mkdtemp(prefix="ncflow-test-jax-cache-"))
-    jax.config.update(keys[1], 1.0)
-    yield
-    for k, v in old.items():
-        jax.config.update(k, v)
-    compilation_cache.reset_cache()
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    """TINY with a persistent compilation cache of its own: the runs happen in Dask worker processes, and
+    both pairs share their source, so the second pair's training step (and every later run's) is read
+    back from that cache instead of compiled again (~20 s each)."""
+    return [*TINY, "--set", f"jit_cache={tmp_path_factory.mktemp('jit')}"]
 
 
 @pytest.fixture(scope="module")
@@ -84,37 +73,28 @@ def _rows(report, method="ncflow"):
     return {r["pair"]: r for r in report["runs"] if r["method"] == method}
 
 
-def test_benchmark_interrupted_then_resumed(pairs_csv, tmp_path, monkeypatch, capsys):
+def test_benchmark_interrupted_then_resumed(pairs_csv, tiny, tmp_path, capsys):
     out = tmp_path / "bench"
-    args = ["benchmark", str(pairs_csv), "--out", str(out), *TINY]
+    args = ["benchmark", str(pairs_csv), "--out", str(out), *tiny]
     runs = out / "runs" / "ncflow"
-    real_match, real_evaluate = bench._match, bench._evaluate
-    calls = {"match": [], "evaluate": []}
 
-    def counting_match(task, interrupt_on=None):
-        calls["match"].append(task.pair.name)
-        if task.pair.name == interrupt_on:
-            raise KeyboardInterrupt  # the user stops the benchmark during the second pair
-        real_match(task)
+    # 1) Ctrl-C as soon as the first run is reported (the second is then waiting or running, --jobs 1):
+    #    the first run is complete, nothing of the second, and the report is written all the same
+    def interrupt(line):
+        if line.startswith("[1/2]"):
+            raise KeyboardInterrupt
 
-    def counting_evaluate(task):
-        calls["evaluate"].append(task.pair.name)
-        return real_evaluate(task)
-
-    # 1) interrupted during the second pair: the first run is complete, nothing of the second
-    monkeypatch.setattr(bench, "_match", lambda t: counting_match(t, interrupt_on="bend_80"))
-    monkeypatch.setattr(bench, "_evaluate", counting_evaluate)
-    assert main(args) == 130
-    assert calls == {"match": ["bend_50", "bend_80"], "evaluate": ["bend_50"]}
+    cfg = config_from_args(build_parser().parse_args(args))
+    with pytest.raises(KeyboardInterrupt):
+        bench.run_benchmark(pairs_csv, out, cfg, jobs=1, progress=False, log=interrupt)
     assert (runs / "bend_50" / "evaluation.json").is_file() and not (runs / "bend_80").exists()
-    assert not (out / "report.json").exists()
+    rows = _rows(json.loads((out / "report.json").read_text()))
+    assert rows["bend_50"]["status"] == "ok"
+    assert rows["bend_80"]["status"] == "failed" and "interrupted" in rows["bend_80"]["error"]
     first = _mtimes(runs / "bend_50")
 
     # 2) the same command again: only the second pair is matched and evaluated
-    calls = {"match": [], "evaluate": []}
-    monkeypatch.setattr(bench, "_match", counting_match)
     assert main(args) == 0
-    assert calls == {"match": ["bend_80"], "evaluate": ["bend_80"]}
     assert _mtimes(runs / "bend_50") == first
     printed = capsys.readouterr().out
     assert "ncflow/bend_50: skipped" in printed and "ncflow/bend_80: matched" in printed
@@ -127,7 +107,8 @@ def test_benchmark_interrupted_then_resumed(pairs_csv, tmp_path, monkeypatch, ca
     assert after["deformed_source.ply"] == first["deformed_source.ply"]
     assert after["evaluation.json"] > first["evaluation.json"]
     assert _mtimes(runs / "bend_80") == second
-    assert "ncflow/bend_50: evaluated" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "ncflow/bend_50: evaluated" in printed and "ncflow/bend_80: skipped" in printed
 
     # the report: both pairs, the method, the dataset, numbers equal to the per-run evaluations
     report = json.loads((out / "report.json").read_text())

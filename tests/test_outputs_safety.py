@@ -419,7 +419,7 @@ def test_benchmark_resumes_only_runs_whose_manifest_matches(tmp_path, monkeypatc
     monkeypatch.setattr(bench, "_match", _fake_match)
     monkeypatch.setattr(bench, "_evaluate", _fake_evaluate)
     out = tmp_path / "bench"
-    args = ["benchmark", str(csv_path), "--out", str(out), "--no-plots", "--steps", "5"]
+    args = ["benchmark", str(csv_path), "--out", str(out), "--no-plots", "--steps", "5", "--jobs", "0"]
     assert main(args) == 0
     printed = capsys.readouterr().out
     assert "ncflow/a: matched" in printed and "ncflow/b: matched" in printed
@@ -485,7 +485,7 @@ def test_crashed_worker_is_a_failed_run_and_the_report_is_written(tmp_path, monk
 
     monkeypatch.setattr(bench, "write_benchmark_report", report)
     out = tmp_path / "bench"
-    assert main(["benchmark", str(csv_path), "--out", str(out), "--steps", "5"]) == 1
+    assert main(["benchmark", str(csv_path), "--out", str(out), "--steps", "5", "--jobs", "0"]) == 1
     rows = {r["pair"]: r for r in json.loads((out / "report.json").read_text())["runs"]}
     assert rows["a"]["status"] == "ok" and rows["b"]["status"] == "failed" and "worker failed" in rows["b"]["error"]
     assert (out / "report.md").is_file()

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ncflow.cli.options import add_config_arguments, config_from_args
+from ncflow.cli.options import add_cluster_arguments, add_config_arguments, config_from_args
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -16,14 +16,15 @@ def register(sub: argparse._SubParsersAction) -> None:
             "relative to the csv, as written by ncflow make-pairs) and every method, run ncflow match into "
             "OUT/runs/<method>/<pair>/ and ncflow evaluate on it; then write OUT/report.md, OUT/report.json and "
             "OUT/curves_<dataset>.png with mean +- std of the AUCs and mean errors, the largest bone violation and "
-            "the time per pair, per method and dataset. Runs already evaluated are skipped, so an interrupted "
-            "benchmark continues when the same command is run again. --ablations runs the paper's Table 1 rows "
-            "(Var+SLERP+soft, Var+DQ, Var+DQ+CO, NC+DQ+CO, full) as variants of the configuration."
+            "the time per pair, per method and dataset. The runs are tasks on Dask (a local cluster of --jobs "
+            "worker processes, or an existing cluster with --scheduler, as for ncflow batch); a run that raises or "
+            "whose worker dies is retried once, then reported as failed. Runs already evaluated are skipped, so an "
+            "interrupted benchmark continues when the same command is run again. --ablations runs the paper's "
+            "Table 1 rows (Var+SLERP+soft, Var+DQ, Var+DQ+CO, NC+DQ+CO, full) as variants of the configuration."
         ),
     )
     p.add_argument("pairs", metavar="PAIRS.csv", help="pairs file (ncflow make-pairs writes one)")
     p.add_argument("--out", required=True, metavar="REPORT_DIR", help="benchmark folder (created; reused to resume)")
-    p.add_argument("--jobs", type=int, default=1, metavar="N", help="worker processes (default 1)")
     p.add_argument(
         "--ablations",
         action="store_true",
@@ -36,6 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="geodesic solver of the evaluation (default auto)",
     )
     p.add_argument("--no-plots", action="store_true", help="no per-run plots and no curve plots")
+    add_cluster_arguments(p)
     add_config_arguments(p)
     p.set_defaults(func=run)
 
@@ -43,11 +45,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import sys
 
-    from ncflow.cli.options import MiB, check_int, output_dir
+    from ncflow.cli.options import MiB, cluster_from_args, output_dir
     from ncflow.errors import InputError
     from ncflow.evaluate.benchmark import read_pairs_csv, run_benchmark
 
-    check_int(args.jobs, "--jobs", 1, 1024)
+    jobs, threads, scheduler = cluster_from_args(args)
     if args.ablations and (args.metric or args.interp or args.constraints):
         raise InputError("--ablations sets --metric, --interp and --constraints itself; leave them out")
     read_pairs_csv(args.pairs)  # one-line error on a bad csv before the configuration is built
@@ -59,7 +61,11 @@ def run(args: argparse.Namespace) -> int:
         out,
         cfg,
         ablations=args.ablations,
-        jobs=args.jobs,
+        jobs=jobs,
+        threads=threads,
+        scheduler=scheduler,
+        dashboard=args.dashboard,
+        verbose=args.verbose,
         plots=not args.no_plots,
         geodesic_method=args.geodesic_method,
         log=lambda line: print(line, flush=True),

@@ -1,4 +1,5 @@
-"""Evaluation: metrics, geodesics, scoring a result folder, plots, benchmark runs and reports (docs/evaluation.md).
+"""Evaluation: metrics, geodesics, scoring a result folder, plots, batches and benchmarks (on Dask), reports
+(docs/evaluation.md).
 
 Also re-exports the ground-truth readers (:mod:`ncflow.io.ground_truth`) and the surface-point
 helpers (:mod:`ncflow.geometry.closest`, :mod:`ncflow.geometry.barycentric`) that the metrics take
@@ -62,6 +63,7 @@ __all__ = [
 ]
 
 # Reports (ncflow evaluate) and the benchmark runner (ncflow benchmark): appended exports.
+from ncflow.evaluate.batch import BatchResult, run_batch
 from ncflow.evaluate.benchmark import (
     ABLATIONS,
     BenchmarkResult,
@@ -76,6 +78,7 @@ from ncflow.io.arrays import json_safe
 
 __all__ += [
     "ABLATIONS",
+    "BatchResult",
     "BenchmarkResult",
     "Evaluation",
     "PairSpec",
@@ -84,6 +87,7 @@ __all__ += [
     "evaluation_text",
     "json_safe",
     "read_pairs_csv",
+    "run_batch",
     "run_benchmark",
     "write_benchmark_report",
     "write_evaluation",

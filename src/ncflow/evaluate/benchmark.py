@@ -4,7 +4,7 @@ Input: a csv with columns ``name, source, target, skeleton, gt`` and optionally 
 ``dataset`` (the file :func:`ncflow.synthetic.pairs.write_pairs` / ``ncflow make-pairs`` writes);
 paths are relative to the csv. ``gt`` is ``identity``, a ground-truth file, or two template
 ``.vts`` files separated by ``;`` (with ``gt_format`` ``template``). Every row is checked (columns,
-files, names) before anything runs.
+files, names) before anything runs (:func:`ncflow.evaluate.pairs_csv.read_pairs_csv`).
 
 Layout of ``OUT``::
 
@@ -12,38 +12,40 @@ Layout of ``OUT``::
     runs/<method>/<pair>/              the output contract of ncflow match, plus
     runs/<method>/<pair>/evaluation.json and eval_*.png   (ncflow evaluate)
     runs/<method>/<pair>/run_manifest.json   what the run was made from (inputs' hashes, versions)
+    tissue/<key>.npz                   the soft tissue of each distinct source, shared by its runs
     report.json, report.md, curves_<dataset>.png
 
-Manifests: every run folder holds ``run_manifest.json`` (:func:`run_manifest`): the SHA-256 of
-its input files (source, target, skeleton, ground truth), the ground-truth format, the geodesic
-method, the ncflow version and the method's configuration, written after the match (``match``
-part) and again after the evaluation (``evaluation`` part).
+Execution: every run (method × pair) is a task on Dask, through the engine of ``ncflow batch``
+(:func:`ncflow.evaluate.batch.run_tasks`): a local cluster of ``jobs`` worker processes, or an
+existing cluster (``scheduler``). A run that raises or whose worker process dies is retried once,
+then recorded as failed in the report while the others go on; running the command again retries
+it. Each distinct source is tetrahedralised once before the runs fan out
+(:func:`ncflow.evaluate.batch.share_tissues`), so the methods and ``--jobs`` see the same tissue.
+
+Manifests: every run folder holds ``run_manifest.json`` (:func:`run_manifest`): the ``match`` part
+(:func:`ncflow.evaluate.batch.match_manifest`: SHA-256 of source, target and skeleton, the ncflow
+version and the method's configuration as far as it changes a result), written after the match,
+and the ``evaluation`` part (SHA-256 of the ground truth, its format, the geodesic method), added
+after the evaluation.
 
 Resuming: a run is skipped only when its manifest matches the current one in full and its
 ``evaluation.json`` exists; a run whose manifest matches in its ``match`` part and whose result is
 complete (``metrics.json`` present; results are written atomically) is only evaluated; anything
 else (no manifest, an input file changed, another ncflow version or configuration) is matched and
 evaluated again (its earlier evaluation removed first). So an interrupted benchmark continues
-where it stopped when the same command is run again, and never reuses a run of other inputs. A
-run that fails (a training error, bad input found late, a worker process that crashed) is
-recorded in the report and the others go on; running the command again retries it. The report
-is always written at the end (without the curve plots if drawing them fails).
+where it stopped when the same command is run again, and never reuses a run of other inputs. The
+report is always written at the end, also after Ctrl-C (runs not done are listed as failed,
+``interrupted``), and without the curve plots if drawing them fails.
 
 Methods: one (``ncflow``: the given configuration) or, with ``ablations=True``, the paper's Table 1
 rows as configuration variants of the given configuration (:data:`ABLATIONS`).
-
-Over 500 lines: the csv reader, the run manifests, the resumable runs and the crash-tolerant
-executor are one protocol over the run folders and are kept together.
 """
 
 from __future__ import annotations
 
-import csv
 import dataclasses
-import hashlib
 import json
 import os
-import re
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -51,13 +53,32 @@ from pathlib import Path
 from ncflow.config import Config, config_to_dict, with_metric
 from ncflow.errors import InputError
 from ncflow.evaluate.aggregate import run_row
+from ncflow.evaluate.batch import MANIFEST_FILE, file_sha256, match_manifest, read_manifest, share_tissues
+from ncflow.evaluate.cluster import open_client
+from ncflow.evaluate.engine import Outcome, Task, run_tasks
+from ncflow.evaluate.pairs_csv import GT_COLUMNS, OPTIONAL_COLUMNS, PAIR_COLUMNS, PairSpec, read_pairs_csv
 from ncflow.evaluate.report import write_benchmark_report
 from ncflow.evaluate.score import EVALUATION_FILE, EVALUATION_PLOTS
 from ncflow.io.atomic import atomic_write_text
-from ncflow.io.ground_truth import GT_FORMATS
 
-REQUIRED_COLUMNS = ("name", "source", "target", "skeleton", "gt")
-OPTIONAL_COLUMNS = ("gt_format", "dataset")
+__all__ = [
+    "ABLATIONS",
+    "MANIFEST_FILE",
+    "BenchmarkResult",
+    "Method",
+    "PairSpec",
+    "RunTask",
+    "benchmark_methods",
+    "file_sha256",
+    "read_pairs_csv",
+    "run_benchmark",
+    "run_manifest",
+    "run_task",
+    "share_tissues",
+]
+
+REQUIRED_COLUMNS = PAIR_COLUMNS + GT_COLUMNS
+assert OPTIONAL_COLUMNS == ("gt_format", "dataset")
 
 # id, label, description, metric, interp, constraints (paper Table 1 rows)
 ABLATIONS = (
@@ -81,106 +102,6 @@ ABLATIONS = (
         "mdmm",
     ),
 )
-_NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
-
-
-# ----------------------------------------------------------------------------------------------
-# Pairs
-
-
-@dataclasses.dataclass(frozen=True)
-class PairSpec:
-    """One row of a pairs csv, paths resolved against the csv's folder.
-
-    ``gt`` is ``"identity"``, a path, or a pair of paths (template maps).
-    """
-
-    name: str
-    source: str
-    target: str
-    skeleton: str
-    gt: str | tuple[str, str]
-    gt_format: str | None
-    dataset: str
-
-
-def _resolve(base: Path, value: str) -> str:
-    p = Path(value)
-    return str(p if p.is_absolute() else base / p)
-
-
-def _parse_row(row: dict, line: int, base: Path, path: Path) -> PairSpec:
-    where = f"line {line}"
-    values = {k: (row.get(k) or "").strip() for k in REQUIRED_COLUMNS + OPTIONAL_COLUMNS}
-    for key in REQUIRED_COLUMNS:
-        if not values[key]:
-            raise InputError(f"{where}: empty {key!r}", path)
-    name = values["name"]
-    if not _NAME_RE.match(name):
-        raise InputError(
-            f"{where}: pair name {name!r} must be letters, digits, '.', '_' or '-' (it names a folder)", path
-        )
-    files = {k: _resolve(base, values[k]) for k in ("source", "target", "skeleton")}
-    fmt = values["gt_format"] or None
-    if fmt is not None and fmt not in GT_FORMATS:
-        raise InputError(f"{where}: unknown gt_format {fmt!r}; use one of {', '.join(GT_FORMATS)}", path)
-    gt: str | tuple[str, str]
-    if fmt == "identity" or (fmt is None and values["gt"].lower() == "identity"):
-        gt = "identity"
-    elif fmt == "template":
-        parts = [s.strip() for s in values["gt"].split(";") if s.strip()]
-        if len(parts) != 2:
-            raise InputError(f"{where}: gt_format template needs two .vts files separated by ';'", path)
-        gt = (_resolve(base, parts[0]), _resolve(base, parts[1]))
-    else:
-        gt = _resolve(base, values["gt"])
-    for key, file in list(files.items()) + [
-        ("gt", g) for g in ((gt,) if isinstance(gt, str) else gt) if g != "identity"
-    ]:
-        if not os.path.isfile(file):
-            raise InputError(f"{where}: {key} file not found: {file}", path)
-    return PairSpec(name, files["source"], files["target"], files["skeleton"], gt, fmt, values["dataset"] or "default")
-
-
-def read_pairs_csv(path: str | os.PathLike) -> list[PairSpec]:
-    """Read and check a pairs csv: required columns, non-empty values, existing files, unique names.
-
-    Raises:
-        InputError: one line naming the csv (and the line) on the first problem.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise InputError("no such file", path)
-    try:
-        with open(path, newline="", encoding="utf-8-sig") as fh:
-            reader = csv.DictReader(fh)
-            header = [h.strip() for h in (reader.fieldnames or [])]
-            reader.fieldnames = header
-            missing = [c for c in REQUIRED_COLUMNS if c not in header]
-            if missing:
-                raise InputError(
-                    f"missing column(s) {', '.join(missing)} "
-                    f"(expected {', '.join(REQUIRED_COLUMNS + OPTIONAL_COLUMNS)})",
-                    path,
-                )
-            rows = [
-                (reader.line_num, row)
-                for row in reader
-                if any((v or "").strip() for v in row.values() if isinstance(v, str))
-            ]
-    except (UnicodeDecodeError, csv.Error) as exc:
-        raise InputError(f"cannot read csv ({str(exc).splitlines()[0]})", path) from None
-    if not rows:
-        raise InputError("no pairs listed", path)
-    pairs = [_parse_row(row, line, path.parent, path) for line, row in rows]
-    seen: set[str] = set()
-    for p in pairs:
-        if p.name in seen:
-            raise InputError(f"duplicate pair name {p.name!r} (names label the run folders)", path)
-        seen.add(p.name)
-    return pairs
-
-
 # ----------------------------------------------------------------------------------------------
 # Methods
 
@@ -234,9 +155,6 @@ class RunTask:
     geodesic_method: str = "auto"
 
 
-MANIFEST_FILE = "run_manifest.json"
-
-
 def _evaluation_done(run_dir: Path) -> bool:
     path = run_dir / EVALUATION_FILE
     if not path.is_file():
@@ -247,36 +165,21 @@ def _evaluation_done(run_dir: Path) -> bool:
         return False
 
 
-def file_sha256(path: str | os.PathLike) -> str:
-    """SHA-256 of a file's bytes (hex)."""
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def run_manifest(task: RunTask) -> dict:
-    """What a run is made from: ``{"match": {...}, "evaluation": {...}}``.
+    """What a run is made from: ``{"format": 1, "match": {...}, "evaluation": {...}}``.
 
-    ``match``: SHA-256 of source, target and skeleton, the ncflow version and the method's
-    configuration. ``evaluation``: SHA-256 of the ground-truth file(s) (``identity`` has none),
-    the ground-truth format and the geodesic method (plus the match part's inputs, through the
-    run). Equal manifests mean a finished run can be reused.
+    ``match``: :func:`ncflow.evaluate.batch.match_manifest` (SHA-256 of source, target and skeleton,
+    the ncflow version, the method's configuration). ``evaluation``: SHA-256 of the ground-truth
+    file(s) (``identity`` has none), the ground-truth format and the geodesic method (plus the match
+    part's inputs, through the run). Equal manifests mean a finished run can be reused.
     """
     from ncflow import __version__
 
     p = task.pair
-    gts = [] if p.gt == "identity" else ([p.gt] if isinstance(p.gt, str) else list(p.gt))
+    gts = [] if p.gt in (None, "identity") else ([p.gt] if isinstance(p.gt, str) else list(p.gt))
     return {
         "format": 1,
-        "match": {
-            "ncflow_version": __version__,
-            "source_sha256": file_sha256(p.source),
-            "target_sha256": file_sha256(p.target),
-            "skeleton_sha256": file_sha256(p.skeleton),
-            "config": json.loads(json.dumps(config_to_dict(task.config))),
-        },
+        "match": match_manifest(p.source, p.target, p.skeleton, task.config),
         "evaluation": {
             "ncflow_version": __version__,
             "gt": "identity" if not gts else [file_sha256(g) for g in gts],
@@ -284,14 +187,6 @@ def run_manifest(task: RunTask) -> dict:
             "geodesic_method": task.geodesic_method,
         },
     }
-
-
-def _read_manifest(run_dir: Path) -> dict | None:
-    try:
-        data = json.loads((run_dir / MANIFEST_FILE).read_text())
-    except (OSError, ValueError):
-        return None
-    return data if isinstance(data, dict) else None
 
 
 def _write_manifest(run_dir: Path, manifest: dict, evaluated: bool) -> None:
@@ -328,19 +223,19 @@ def _evaluate(task: RunTask) -> dict:
 
 
 def run_task(task: RunTask) -> dict:
-    """Do what is left of one run; never raises for a failed run (except on interruption).
+    """Do what is left of one run (on a worker); a failure raises (the engine records and retries it).
 
     Returns:
         ``{"method", "pair", "status", "seconds", "error"}`` with status ``"skipped"`` (already
         evaluated, same manifest), ``"evaluated"`` (result of the same inputs found, evaluation
-        added), ``"matched"`` (matched and evaluated) or ``"failed"`` (``error`` holds one line).
+        added) or ``"matched"`` (matched and evaluated); ``error`` None.
     """
     t0 = time.perf_counter()
     run_dir = Path(task.run_dir)
     out = {"method": task.method, "pair": task.pair.name, "status": "skipped", "seconds": 0.0, "error": None}
     try:
         manifest = run_manifest(task)
-        old = _read_manifest(run_dir) or {}
+        old = read_manifest(run_dir) or {}
         same_match = old.get("match") == manifest["match"] and (run_dir / "metrics.json").is_file()
         if same_match and old.get("evaluation") == manifest["evaluation"] and _evaluation_done(run_dir):
             return out
@@ -349,14 +244,12 @@ def run_task(task: RunTask) -> dict:
         else:
             if run_dir.is_dir():
                 _drop_evaluation(run_dir)  # it scored an earlier result (or other inputs)
+                (run_dir / MANIFEST_FILE).unlink(missing_ok=True)
             _match(task)
             _write_manifest(run_dir, manifest, evaluated=False)
             out["status"] = "matched"
         _evaluate(task)
         _write_manifest(run_dir, manifest, evaluated=True)
-    except Exception as exc:  # noqa: BLE001 -- a failed run is recorded, the benchmark goes on
-        text = str(exc).splitlines()[0] if str(exc) else ""
-        out.update(status="failed", error=f"{type(exc).__name__}: {text[:300]}".rstrip(": "))
     finally:
         # every pair compiles its own executables (other shapes); kept for the whole process they
         # exhausted the address-space mappings after ~14 pairs (LLVM "Unable to allocate section memory")
@@ -367,8 +260,15 @@ def run_task(task: RunTask) -> dict:
     return out
 
 
-def _crashed(task: RunTask, why: str) -> dict:
-    return {"method": task.method, "pair": task.pair.name, "status": "failed", "seconds": 0.0, "error": why}
+def _crashed(task: RunTask, why: str, attempts: int = 1) -> dict:
+    return {
+        "method": task.method,
+        "pair": task.pair.name,
+        "status": "failed",
+        "seconds": 0.0,
+        "error": why,
+        "attempts": attempts,
+    }
 
 
 # ----------------------------------------------------------------------------------------------
@@ -388,6 +288,13 @@ class BenchmarkResult:
         return sum(o["status"] == "failed" for o in self.outcomes)
 
 
+def _comparable(config: dict | None) -> dict | None:
+    """A method configuration without the settings that never change a result (``jit_cache``)."""
+    if not isinstance(config, dict):
+        return None
+    return {k: v for k, v in config.items() if k != "jit_cache"}
+
+
 def _check_method_configs(out: Path, methods: list[Method]) -> None:
     """Refuse to resume runs made with another configuration (before anything runs)."""
     for m in methods:
@@ -398,7 +305,7 @@ def _check_method_configs(out: Path, methods: list[Method]) -> None:
             old = json.loads(path.read_text()).get("config")
         except (OSError, ValueError, AttributeError):
             raise InputError("unreadable method configuration; remove it or use another --out", path) from None
-        if old != json.loads(json.dumps(config_to_dict(m.config))):
+        if _comparable(old) != _comparable(json.loads(json.dumps(config_to_dict(m.config)))):
             raise InputError(
                 f"the runs of method {m.id!r} were made with another configuration; use another --out "
                 "(or remove that method's folder) to run with this one",
@@ -414,62 +321,47 @@ def _write_method_configs(out: Path, methods: list[Method]) -> None:
             atomic_write_text(d / "config.json", json.dumps(m.to_dict(), indent=1) + "\n")
 
 
+def _task_key(task: RunTask) -> str:
+    return f"{task.method}/{task.pair.name}"
+
+
 def _execute(
     tasks: list[RunTask],
     jobs: int,
     log: Callable[[str], None],
     describe: Callable[[dict], str],
     worker: Callable[[RunTask], dict] | None = None,
+    *,
+    client=None,
+    outcomes: list[dict] | None = None,
+    progress: bool = True,
+    throttle: bool = True,
 ) -> list[dict]:
-    """Run the tasks in this process (jobs = 1) or in a spawn process pool; log each as it ends.
+    """Run the tasks on Dask (``client``, else a local cluster of ``jobs`` worker processes); log each
+    as it ends. A run that raises or whose worker process dies is retried once, then recorded as
+    failed (:func:`ncflow.evaluate.batch.run_tasks`); the others go on.
 
-    A worker process that dies (a crash, the kernel's out-of-memory killer) breaks the pool: the
-    runs it took down are retried one at a time, each in a fresh process, and a run whose process
-    dies again is recorded as failed; the others go on.
+    ``outcomes``: a list the outcome dicts are appended to as they come (kept on Ctrl-C).
     """
     worker = run_task if worker is None else worker
-    outcomes: list[dict] = []
+    outcomes = [] if outcomes is None else outcomes
+    by_key = {_task_key(t): t for t in tasks}
 
-    def done(o: dict) -> None:
-        outcomes.append(o)
-        log(f"[{len(outcomes)}/{len(tasks)}] {describe(o)}")
+    def done(o: Outcome) -> None:
+        t = by_key[o.key]
+        if o.status == "ok":
+            d = dict(o.value, attempts=o.attempts)
+        else:
+            d = _crashed(t, o.error, o.attempts)
+        outcomes.append(d)
+        log(f"[{len(outcomes)}/{len(tasks)}] {describe(d)}")
 
-    if jobs <= 1:
-        for t in tasks:
-            try:
-                o = worker(t)
-            except Exception as exc:  # noqa: BLE001 -- run_task records failures itself; belt and braces
-                o = _crashed(t, f"{type(exc).__name__}: {str(exc)[:300]}")
-            done(o)
-        return outcomes
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-    from concurrent.futures.process import BrokenProcessPool
-
-    context = multiprocessing.get_context("spawn")
-    lost: list[RunTask] = []
-    with ProcessPoolExecutor(max_workers=jobs, mp_context=context) as pool:
-        futures = {pool.submit(worker, t): t for t in tasks}
-        try:
-            for f in as_completed(futures):
-                try:
-                    done(f.result())
-                except BrokenProcessPool:
-                    lost.append(futures[f])
-                except Exception as exc:  # noqa: BLE001 -- e.g. a result that cannot be unpickled
-                    done(_crashed(futures[f], f"{type(exc).__name__}: {str(exc)[:300]}"))
-        except BaseException:
-            for f in futures:
-                f.cancel()
-            raise
-    for t in lost:  # one at a time, each in its own process: a crash takes down only its own run
-        with ProcessPoolExecutor(max_workers=1, mp_context=context) as solo:
-            try:
-                done(solo.submit(worker, t).result())
-            except BrokenProcessPool:
-                done(_crashed(t, "the worker process crashed (killed, or out of memory)"))
-            except Exception as exc:  # noqa: BLE001
-                done(_crashed(t, f"{type(exc).__name__}: {str(exc)[:300]}"))
+    run = [Task(_task_key(t), worker, t) for t in tasks]
+    if client is not None:
+        run_tasks(client, run, on_done=done, progress=progress, unit="run", throttle=throttle)
+    else:
+        with open_client(jobs, log=log) as (local, _):
+            run_tasks(local, run, on_done=done, progress=progress, unit="run")
     return outcomes
 
 
@@ -498,45 +390,13 @@ def _collect_rows(tasks: list[RunTask], outcomes: dict) -> list[dict]:
             "dir": str(Path("runs") / t.method / t.pair.name),
         }
         o = outcomes.get((t.method, t.pair.name), {})
-        if o.get("status") != "failed" and _evaluation_done(run_dir):
+        if o and o.get("status") != "failed" and _evaluation_done(run_dir):
             rows.append(
                 {**base, "status": "ok", "error": None, **run_row(json.loads((run_dir / EVALUATION_FILE).read_text()))}
             )
         else:
-            rows.append({**base, "status": "failed", "error": o.get("error") or "not run"})
+            rows.append({**base, "status": "failed", "error": o.get("error") or "not run (interrupted)"})
     return rows
-
-
-def share_tissues(tasks: list[RunTask], out: Path, log: Callable[[str], None] = print) -> list[RunTask]:
-    """Tetrahedralise each distinct source once, before the runs fan out, and point every run that
-    uses it at that exact tissue (``tissue.file``), so methods and ``--jobs`` see the same tetrahedra
-    (fTetWild is not deterministic). The tissues go to ``out/tissue/<sha256>.npz``.
-    """
-    from ncflow.io.meshes import load_mesh
-    from ncflow.match.prepare import source_tissue, uses_tissue, working_source
-    from ncflow.tissue import write_tissue_file
-
-    done: dict = {}
-    shared = []
-    for task in tasks:
-        cfg = task.config
-        if not uses_tissue(cfg) or cfg.tissue.file:
-            shared.append(task)
-            continue
-        t = cfg.tissue
-        key = (task.pair.source, t.edge_length_fac, t.epsilon, t.split_passes, cfg.working_vertices)
-        if key not in done:
-            _, _, work = working_source(load_mesh(task.pair.source), cfg)
-            c, info = source_tissue(work, cfg)
-            path = out / "tissue" / f"{info['sha256']}.npz"
-            if not path.exists():
-                write_tissue_file(path, c)
-            log(f"tissue of {Path(task.pair.source).name}: {c.shape[0]} samples, shared by its runs ({path.name[:12]})")
-            done[key] = str(path)
-        shared.append(
-            dataclasses.replace(task, config=dataclasses.replace(cfg, tissue=dataclasses.replace(t, file=done[key])))
-        )
-    return shared
 
 
 def run_benchmark(
@@ -546,18 +406,29 @@ def run_benchmark(
     *,
     ablations: bool = False,
     jobs: int = 1,
+    threads: int = 1,
+    scheduler: str | None = None,
+    dashboard: bool = False,
+    verbose: bool = False,
+    progress: bool = True,
     plots: bool = True,
     geodesic_method: str = "auto",
     log: Callable[[str], None] = print,
 ) -> BenchmarkResult:
-    """Match and evaluate every pair (per method), resuming finished runs, and write the report.
+    """Match and evaluate every pair (per method) on Dask, resuming finished runs, and write the report.
 
     Args:
         pairs_csv: the pairs file (see the module docstring).
         out_dir: the benchmark folder (created).
         config: the configuration (the ``ncflow`` method, or the base of the ablation variants).
         ablations: run the Table 1 variants (:data:`ABLATIONS`) instead of one method.
-        jobs: worker processes (spawn); 1 runs everything in this process.
+        jobs: local worker processes (0: in this process); ignored with ``scheduler``.
+        threads: JAX threads of each local worker (:mod:`ncflow.evaluate.cluster`).
+        scheduler: address or scheduler file of an existing Dask cluster
+            (:func:`ncflow.evaluate.cluster.open_client`).
+        dashboard: start the local cluster's dashboard and print its address.
+        verbose: let Dask's log messages through.
+        progress: a progress bar over the runs (on a terminal).
         plots: write the per-run plots and the report's curve plots.
         geodesic_method: see :func:`ncflow.evaluate.geodesic_errors`.
         log: where progress lines go.
@@ -566,24 +437,23 @@ def run_benchmark(
         :class:`BenchmarkResult`.
 
     Raises:
-        InputError: bad csv, bad ``jobs``, or runs in ``out_dir`` made with another configuration;
-            raised before anything runs or is written.
+        InputError: bad csv, bad ``jobs``, no scheduler at ``scheduler``, or runs in ``out_dir`` made
+            with another configuration; raised before anything runs or is written.
+        KeyboardInterrupt: after writing the report of what was done.
     """
-    if jobs < 1:
-        raise InputError(f"--jobs must be at least 1 (got {jobs})")
+    if jobs < 0:
+        raise InputError(f"--jobs must be at least 0 (got {jobs})")
     pairs = read_pairs_csv(pairs_csv)
     methods = benchmark_methods(config, ablations)
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise InputError("exists and is not a folder", out)
     _check_method_configs(out, methods)
-    _write_method_configs(out, methods)
     tasks = [
         RunTask(m.id, p, m.config, str(out / "runs" / m.id / p.name), plots, geodesic_method)
         for p in pairs
         for m in methods
     ]
-    tasks = share_tissues(tasks, out, log)
     rows_so_far: dict = {}
 
     def describe(o: dict) -> str:
@@ -592,14 +462,27 @@ def run_benchmark(
             rows_so_far[(o["method"], o["pair"])] = run_row(json.loads((run_dir / EVALUATION_FILE).read_text()))
         return _describe(o, rows_so_far)
 
-    outcomes = _execute(tasks, jobs, log, describe)
+    outcomes: list[dict] = []
+    cluster = open_client(jobs, scheduler, threads=threads, dashboard=dashboard, verbose=verbose, log=log)
+    with cluster as (client, info):
+        throttle = info["kind"] != "scheduler"  # an existing cluster may grow with the queue (adapt)
+        _write_method_configs(out, methods)
+        try:
+            tasks = share_tissues(tasks, out, log, client, throttle)
+            _execute(tasks, jobs, log, describe, client=client, outcomes=outcomes, progress=progress, throttle=throttle)
+        finally:
+            report = _report(out, tasks, outcomes, methods, pairs_csv, len(pairs), plots, log)
+    return BenchmarkResult(report, outcomes)
+
+
+def _report(out, tasks, outcomes, methods, pairs_csv, n_pairs, plots, log) -> dict:
+    """Write the report (without the curve plots if drawing them fails)."""
     rows = _collect_rows(tasks, {(o["method"], o["pair"]): o for o in outcomes})
-    kwargs = {"pairs_csv": str(pairs_csv), "n_pairs": len(pairs)}
+    kwargs = {"pairs_csv": str(pairs_csv), "n_pairs": n_pairs}
     try:
-        report = write_benchmark_report(out, rows, [m.to_dict() for m in methods], plots=plots, **kwargs)
+        return write_benchmark_report(out, rows, [m.to_dict() for m in methods], plots=plots, **kwargs)
     except Exception as exc:  # noqa: BLE001 -- the report is always written: without the plots then
         if not plots:
             raise
         log(f"could not draw the curve plots ({type(exc).__name__}: {str(exc)[:200]}); writing the report without")
-        report = write_benchmark_report(out, rows, [m.to_dict() for m in methods], plots=False, **kwargs)
-    return BenchmarkResult(report, outcomes)
+        return write_benchmark_report(out, rows, [m.to_dict() for m in methods], plots=False, **kwargs)
