@@ -46,20 +46,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _gt_spec(values: list[str], fmt: str | None):
-    from ncflow.errors import InputError
-
-    if len(values) == 2 and fmt == "template":
-        return tuple(values)
-    if len(values) != 1:
-        raise InputError(f"--gt takes one value (two only with --gt-format template), got {len(values)}")
-    return values[0]
-
-
 def run(args: argparse.Namespace) -> int:
     import json
 
-    from ncflow.cli.options import MiB, output_dir
+    from ncflow.cli.options import MiB, gt_spec, output_dir
     from ncflow.evaluate.score import EVALUATION_FILE, evaluate_result, evaluation_text, write_evaluation
 
     # RESULT_DIR receives evaluation.json and the plots: checked before the evaluation runs (it may
@@ -69,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
         args.result_dir,
         args.source,
         args.target,
-        _gt_spec(args.gt, args.gt_format),
+        gt_spec(args.gt, args.gt_format),
         args.gt_format,
         geodesic_method=args.geodesic_method,
     )

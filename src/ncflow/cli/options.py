@@ -37,6 +37,21 @@ def check_seed(value, option: str = "--seed", count: int = 1) -> int | None:
     return check_int(value, option, 0, SEED_LIMIT - max(1, count))
 
 
+def gt_spec(values: list[str] | None, fmt: str | None):
+    """The ground truth of ``--gt`` (one value, or two with ``--gt-format template``; None when not given)."""
+    from ncflow.errors import InputError
+
+    if values is None:
+        if fmt is not None:
+            raise InputError("--gt-format needs --gt")
+        return None
+    if len(values) == 2 and fmt == "template":
+        return tuple(values)
+    if len(values) != 1:
+        raise InputError(f"--gt takes one value (two only with --gt-format template), got {len(values)}")
+    return values[0]
+
+
 def check_number(value, option: str, lo: float | None = None, hi: float | None = None, positive: bool = False):
     """``value`` (None passes) a finite number within [lo, hi] (above 0 with ``positive``)."""
     from ncflow.errors import InputError

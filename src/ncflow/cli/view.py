@@ -47,25 +47,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _gt_spec(values: list[str] | None, fmt: str | None):
-    from ncflow.errors import InputError
-
-    if values is None:
-        if fmt is not None:
-            raise InputError("--gt-format needs --gt")
-        return None
-    if len(values) == 2 and fmt == "template":
-        return tuple(values)
-    if len(values) != 1:
-        raise InputError(f"--gt takes one value (two only with --gt-format template), got {len(values)}")
-    return values[0]
-
-
 def run(args: argparse.Namespace) -> int:
     import os
     from pathlib import Path
 
-    from ncflow.cli.options import MiB, check_int, output_file
+    from ncflow.cli.options import MiB, check_int, gt_spec, output_file
     from ncflow.reuse.view import (
         DEFAULT_MAX_DISPLAY_FRAMES,
         DEFAULT_MAX_DISPLAY_VERTICES,
@@ -75,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
 
     check_int(args.max_vertices, "--max-vertices", 100, 10**7)
     check_int(args.max_frames, "--max-frames", 2, 10**5)
-    gt = _gt_spec(args.gt, args.gt_format)
+    gt = gt_spec(args.gt, args.gt_format)
     out = Path(args.result_dir) / "view.html" if args.out is None else Path(args.out)
     output_file(out, need_bytes=16 * MiB, option="--out")
     check_view_output(out, args.overwrite)
