@@ -36,8 +36,7 @@ from jaxtyping import Float, Int
 
 from ncflow.errors import ResultError
 from ncflow.io.arrays import as_faces, as_times
-from ncflow.io.atomic import atomic_path
-from ncflow.io.gltf.writer import new_document
+from ncflow.io.gltf.writer import new_document, save_document
 
 __all__ = ["MAX_RIG_JOINTS", "write_rig_glb"]
 
@@ -230,11 +229,4 @@ def write_rig_glb(
         )
         gltf.animations = [pygltflib.Animation(name=name, samplers=samplers, channels=channels)]
 
-    blob = builder.blob()
-    gltf.buffers[0].byteLength = len(blob)
-    gltf.set_binary_blob(blob)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path) as tmp:
-        gltf.save_binary(str(tmp))
-    return path
+    return save_document(gltf, builder, path)

@@ -101,6 +101,18 @@ def new_document(generator: str, material: str):
     return gltf, BinBuilder(gltf)
 
 
+def save_document(gltf, builder: BinBuilder, path: str | os.PathLike) -> Path:
+    """Write ``gltf`` with the builder's buffer as one GLB file, atomically; returns the path."""
+    blob = builder.blob()
+    gltf.buffers[0].byteLength = len(blob)
+    gltf.set_binary_blob(blob)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp:
+        gltf.save_binary(str(tmp))
+    return path
+
+
 def _morph_primitive(builder: BinBuilder, frames32: np.ndarray, indices: np.ndarray, mode: int, material: int | None):
     import pygltflib
 
@@ -200,11 +212,4 @@ def write_animation_glb(
         for n in range(len(gltf.nodes))
     ]
     gltf.animations = [pygltflib.Animation(name=name, samplers=[sampler], channels=channels)]
-    blob = builder.blob()
-    gltf.buffers[0].byteLength = len(blob)
-    gltf.set_binary_blob(blob)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path) as tmp:
-        gltf.save_binary(str(tmp))
-    return path
+    return save_document(gltf, builder, path)
