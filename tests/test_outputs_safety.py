@@ -495,3 +495,14 @@ def dataclasses_replace(obj, **changes):
     import dataclasses
 
     return dataclasses.replace(obj, **changes)
+
+
+def test_demo_refuses_a_foreign_view_page_before_any_work(tmp_path, capsys, stub_matcher):
+    out = tmp_path / "demo"
+    out.mkdir()
+    (out / "view.html").write_text("my page\n")
+    before = _snapshot(tmp_path)
+    assert main(["demo", "--out", str(out), "--overwrite", "--quiet"]) == 2
+    line = _one_line(capsys)
+    assert "view.html" in line and "not written by ncflow demo" in line
+    assert stub_matcher["n"] == 0 and _snapshot(tmp_path) == before

@@ -14,8 +14,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         description=(
             "Generates a watertight articulated character (skeleton of >= 10 bones) in two poses with a large "
             "joint rotation, the target re-triangulated and with exact ground truth, runs the matcher with the "
-            "default preset, writes the full output contract (plus the inputs and ground truth) into --out, "
-            "and prints the correspondence accuracy and the run time."
+            "default preset, writes the full output contract (plus the inputs and ground truth, and view.html: the "
+            "offline viewer page of ncflow view with the geodesic-error map) into --out, and prints the "
+            "correspondence accuracy and the run time."
         ),
     )
     p.add_argument("--out", default="ncflow-demo", help="output directory (default ./ncflow-demo)")
@@ -36,6 +37,7 @@ def run(args: argparse.Namespace) -> int:
     from ncflow.evaluate import auc, geodesic_errors
     from ncflow.io.atomic import atomic_write_text, move_into_place, remove_tree, staging_dir
     from ncflow.match.matcher import Matcher
+    from ncflow.reuse.view import write_view
     from ncflow.synthetic.pairs import PAIR_FILES, make_pair, write_pair
 
     check_seed(args.pair_seed, "--pair-seed")
@@ -81,7 +83,8 @@ def run(args: argparse.Namespace) -> int:
         remove_tree(staged)
         raise
     atomic_write_text(out / "demo_summary.json", json.dumps(summary, indent=2))
-    print(f"wrote {args.out} (inputs and ground truth in {inputs})")
+    page = write_view(out, out / "view.html", gt=inputs / "gt.npz", title=f"ncflow demo ({args.kind})")
+    print(f"wrote {args.out} (inputs and ground truth in {inputs}); open {page} in a browser to see it")
     print(
         f"correspondence: mean geodesic error / sqrt(area) = {summary['geodesic_error_mean']:.4f}, "
         f"AUC(0.20) = {summary['geodesic_auc_0.20']:.3f}; largest bone violation g/eps = "
@@ -91,11 +94,19 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _check_demo_extras(out) -> None:
-    """``inputs/`` and ``demo_summary.json`` of an earlier demo may be replaced; anything else there is refused."""
+    """``inputs/``, ``demo_summary.json`` and ``view.html`` of an earlier demo may be replaced; anything else there
+    is refused.
+    """
     from ncflow.errors import InputError
+    from ncflow.reuse.view import check_view_output
     from ncflow.synthetic.pairs import PAIR_FILES
 
-    inputs, summary = out / "inputs", out / "demo_summary.json"
+    inputs, summary, page = out / "inputs", out / "demo_summary.json", out / "view.html"
+    if page.exists() or page.is_symlink():
+        try:
+            check_view_output(page)  # a page of ncflow view, else refused
+        except InputError:
+            raise InputError("was not written by ncflow demo; move it away first", page) from None
     if summary.is_symlink() or (summary.exists() and not summary.is_file()):
         raise InputError("is not a file ncflow wrote; remove it first", summary)
     if inputs.is_symlink() or (inputs.exists() and not inputs.is_dir()):
