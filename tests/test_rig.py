@@ -29,11 +29,11 @@ from scipy.spatial.transform import Rotation
 
 from ncflow.cli import main
 from ncflow.errors import InputError
+from ncflow.geometry.barycentric import surface_points
 from ncflow.geometry.rigid import linear_blend_skinning, skinning_matrices
 from ncflow.io.gltf.rig_writer import write_rig_glb
 from ncflow.io.gltf.skins import load_gltf_skin, pose_gltf
 from ncflow.io.result import read_result, write_result
-from ncflow.reuse.carry import interpolate
 from ncflow.reuse.rig import joint_motion, rig_result
 from ncflow.reuse.weights import gltf_skin_weights, limit_influences
 from ncflow.skeleton.kinematics import Pose
@@ -228,7 +228,7 @@ def test_pose_back_to_the_source(case, rigged):
     # the ideal rig: exact inverse transforms of the generating pose, generating weights through the GT
     world = pose_world_transforms(ch.spec.positions, ch.spec.parents, pair.info["pose_b"])
     inverse = np.linalg.inv(skinning_matrices(world, ch.spec.positions))
-    carried = interpolate(_joint_weights(ch), ch.faces, pair.ground_truth.face, pair.ground_truth.bary)
+    carried = surface_points(_joint_weights(ch), ch.faces, pair.ground_truth.face, pair.ground_truth.bary)
     ref = np.linalg.norm(linear_blend_skinning(pair.target.vertices, carried, inverse) - gt_points, axis=1) / diag
     errors = {}
     for which, report in rigged.items():

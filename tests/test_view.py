@@ -22,10 +22,9 @@ import pytest
 
 from ncflow.cli import main
 from ncflow.errors import InputError
-from ncflow.geometry.barycentric import surface_points
+from ncflow.geometry.barycentric import round_to_vertex, surface_points
 from ncflow.geometry.mesh import face_areas
 from ncflow.io.result import read_result, write_result
-from ncflow.reuse.carry import nearest_corner
 from ncflow.reuse.view import (
     NO_DATA_RGB,
     decode_array,
@@ -54,7 +53,7 @@ def case(tmp_path_factory):
     tv, tf = pair.target.vertices, pair.target.faces
     nv, nt = rest.shape[0], tv.shape[0]
     # ground truth as a vertex map: the source vertex nearest each target vertex's true point
-    truth = nearest_corner(np.arange(nv), faces, pair.ground_truth.face, pair.ground_truth.bary)
+    truth = round_to_vertex(faces, pair.ground_truth.face, pair.ground_truth.bary)
     # the predicted map: exactly that vertex, except every 7th target vertex goes to a neighbour
     vertex_face = np.full(nv, -1)
     neighbour = np.full(nv, -1)

@@ -28,6 +28,7 @@ from jaxtyping import Float, Int
 from ncflow.evaluate.aggregate import mean_curve_band, mean_std
 from ncflow.evaluate.formatting import format_number
 from ncflow.evaluate.metrics import CURVE_METRICS, TAU_MAX
+from ncflow.geometry.barycentric import surface_points
 from ncflow.geometry.mesh import Mesh
 from ncflow.io.ground_truth import GroundTruth
 
@@ -163,17 +164,6 @@ def source_colors(vertices: Float[np.ndarray, "V 3"]) -> Float[np.ndarray, "V 3"
     return (v - lo) / np.where(hi > lo, hi - lo, 1.0)
 
 
-def transfer_colors(
-    colors: Float[np.ndarray, "Vs 3"],
-    faces: Int[np.ndarray, "Fs 3"],
-    face: Int[np.ndarray, " n"],
-    bary: Float[np.ndarray, "n 3"],
-) -> Float[np.ndarray, "n 3"]:
-    """Colours at source surface points (face, barycentric): the barycentric mix of the corners' colours."""
-    corners = np.asarray(colors)[np.asarray(faces, dtype=np.int64)[np.asarray(face, dtype=np.int64)]]
-    return np.einsum("nk,nkc->nc", np.asarray(bary, dtype=np.float64), corners)
-
-
 def render_color_transfer(
     source: Mesh,
     target: Mesh,
@@ -187,9 +177,9 @@ def render_color_transfer(
     and through the ground truth (grey where there is none), side by side; a PNG.
     """
     cs = source_colors(source.vertices)
-    pred = transfer_colors(cs, source.faces, pred_face, pred_bary)
+    pred = surface_points(cs, source.faces, pred_face, pred_bary)
     truth = np.tile(_NO_DATA_RGB, (target.n_vertices, 1))
-    truth[ground_truth.target_index] = transfer_colors(cs, source.faces, ground_truth.face, ground_truth.bary)
+    truth[ground_truth.target_index] = surface_points(cs, source.faces, ground_truth.face, ground_truth.bary)
     panels = [
         ("source", source, cs),
         ("target through the predicted map", target, pred),

@@ -15,15 +15,19 @@ from jaxtyping import Float, Int
 
 
 def surface_points(
-    vertices: Float[np.ndarray, "V 3"],
+    vertices: Float[np.ndarray, "V ..."],
     faces: Int[np.ndarray, "F 3"],
     face: Int[np.ndarray, " n"],
     bary: Float[np.ndarray, "n 3"],
-) -> Float[np.ndarray, "n 3"]:
-    """Positions Σ_k b_k x_{F[f, k]} of surface points (face, barycentric)."""
+) -> Float[np.ndarray, "n ..."]:
+    """Positions Σ_k b_k x_{F[f, k]} of surface points (face, barycentric).
+
+    ``vertices`` may be any per-vertex values (V, ...) — colours, weights, texture coordinates: the
+    result is their barycentric interpolation, exact for values linear on each triangle.
+    """
     v = np.asarray(vertices, dtype=np.float64)
     tri = v[np.asarray(faces)[np.asarray(face, dtype=np.int64)]]
-    return np.einsum("nk,nkd->nd", np.asarray(bary, dtype=np.float64), tri)
+    return np.einsum("nk,nk...->n...", np.asarray(bary, dtype=np.float64), tri)
 
 
 def vertex_surface_points(

@@ -5,7 +5,7 @@ Every target vertex j corresponds to the point of the rest source surface given 
 (DESIGN.md, "Output contract"). A per-vertex attribute of the source is read there:
 
 * continuous values (any (Vs, C) float array, PLY float properties): barycentric interpolation
-  (:func:`ncflow.reuse.carry.interpolate`), exact for functions linear on each source triangle;
+  (:func:`ncflow.geometry.barycentric.surface_points`), exact for functions linear on each source triangle;
 * labels (integers): :func:`transfer_labels`, by default the barycentric-weighted majority of the
   face's three corner labels (``"majority"``), else the corner of largest weight (``"nearest"``);
 * colours (PLY ``red green blue [alpha]``): barycentric, clipped to the range, written as bytes;
@@ -31,7 +31,7 @@ import numpy as np
 from jaxtyping import Float, Int
 
 from ncflow.errors import InputError
-from ncflow.geometry.barycentric import surface_points, vertex_surface_points
+from ncflow.geometry.barycentric import round_to_vertex, surface_points, vertex_surface_points
 from ncflow.geometry.closest import closest_points_on_surface
 from ncflow.io.atomic import check_output_file
 from ncflow.io.landmarks import landmark_arrays, read_landmarks, write_landmarks
@@ -40,7 +40,6 @@ from ncflow.io.obj_uv import read_obj_uv, write_obj_uv
 from ncflow.io.ply_properties import PLY_TYPES, PlyVertexProperties, read_ply_vertex_properties, write_ply_properties
 from ncflow.io.result import CONTRACT_FILES, read_result
 from ncflow.io.vertex_arrays import read_vertex_array, write_vertex_array
-from ncflow.reuse.carry import interpolate, nearest_corner
 from ncflow.reuse.uv import UVTransfer, transfer_uv
 
 __all__ = [
@@ -95,13 +94,13 @@ def transfer_labels(
     indicator crosses ½ — the same reading as for continuous values, and it does not flip a point
     to a label held by one corner against two corners that together outweigh it.
     ``"nearest"``: the label of the corner of largest weight
-    (:func:`ncflow.reuse.carry.nearest_corner`).
+    (:func:`ncflow.geometry.barycentric.round_to_vertex`).
 
     Returns:
         (Vt,) or (Vt, C) labels, the dtype of ``labels``.
     """
     if rule == "nearest":
-        return nearest_corner(labels, source_faces, face, bary)
+        return labels[round_to_vertex(source_faces, face, bary)]
     if rule != "majority":
         raise InputError(f"unknown label rule {rule!r}; use one of {', '.join(LABEL_RULES)}")
     labels = np.asarray(labels)
@@ -150,12 +149,12 @@ def transfer_properties(
         values = properties.values[name]
         if name in COLOR_CHANNELS:
             full = _color_scale(values, ptype)
-            c = interpolate(values.astype(np.float64) / full, source_faces, face, bary)
+            c = surface_points(values.astype(np.float64) / full, source_faces, face, bary)
             out.append((name, "uchar", np.round(np.clip(c, 0.0, 1.0) * 255.0).astype(np.uint8)))
         elif values.dtype.kind in "iu":
             out.append((name, ptype, transfer_labels(values.astype(np.int64), source_faces, face, bary, rule)))
         else:
-            out.append((name, ptype, interpolate(values, source_faces, face, bary)))
+            out.append((name, ptype, surface_points(values, source_faces, face, bary)))
     return out
 
 
@@ -342,7 +341,7 @@ def _array_transfer(kind, attributes, n_source, res, target, result_dir, rule, m
             arr = arr.astype(np.int64)
         return transfer_labels(arr, sf, face, bary, rule), kind, details
     if kind == "values":
-        return interpolate(arr.astype(np.float64), sf, face, bary), kind, details
+        return surface_points(arr.astype(np.float64), sf, face, bary), kind, details
     w = arr.astype(np.float64).reshape(n_source, -1)
     sums = w.sum(axis=1)
     if np.any(w < -1e-9) or np.any(np.abs(sums - 1.0) > WEIGHT_SUM_TOL):

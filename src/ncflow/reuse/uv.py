@@ -16,7 +16,6 @@ import numpy as np
 from jaxtyping import Float, Int
 
 from ncflow.geometry.barycentric import surface_points
-from ncflow.reuse.carry import interpolate
 
 __all__ = ["SEAM_RATIO", "UVTransfer", "transfer_uv"]
 
@@ -89,7 +88,7 @@ def transfer_uv(
     uf = np.asarray(uv_faces, dtype=np.int64)
     face = np.asarray(face, dtype=np.int64)
     tf = np.asarray(target_faces, dtype=np.int64)
-    own = interpolate(t, uf, face, bary)  # (Vt, 2)
+    own = surface_points(t, uf, face, bary)  # (Vt, 2)
     points = surface_points(sv, sf, face, bary)  # rest source point of every target vertex
     fc = face[tf]  # (Ft, 3) source face of every corner
     scale = float(np.ptp(t, axis=0).max()) if t.size else 1.0

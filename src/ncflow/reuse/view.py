@@ -250,8 +250,8 @@ def view_data(
         each target vertex maps to.
     """
     from ncflow.evaluate.plots import source_colors
+    from ncflow.geometry.barycentric import surface_points
     from ncflow.geometry.decimate import decimate
-    from ncflow.reuse.carry import interpolate
 
     frames = np.asarray(result["frames"], np.float64)
     faces = np.asarray(result["source_faces"], np.int64)
@@ -260,7 +260,7 @@ def view_data(
     pick = _frame_subset(frames.shape[0], max_display_frames)
     rest = frames[0]
     ref = source_colors(rest)  # positions in [0, 1] per axis: the colour and checker coordinates
-    target_ref = np.clip(interpolate(ref, faces, result["map_face"], result["map_bary"]), 0.0, 1.0)
+    target_ref = np.clip(surface_points(ref, faces, result["map_face"], result["map_bary"]), 0.0, 1.0)
     src = decimate(rest, faces, max_display_vertices)
     tgt = decimate(tv, tf, max_display_vertices)
     shown = frames[pick][:, src.kept]

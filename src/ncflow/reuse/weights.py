@@ -4,7 +4,7 @@
 SIGGRAPH Asia 2023 Technical Communications) in two stages:
 
 1. **Carry.** Every target vertex reads the source weights at its point of the source surface,
-   ``map_tgt_to_src`` (face + barycentric coordinates; :func:`ncflow.reuse.carry.interpolate`).
+   ``map_tgt_to_src`` (face + barycentric coordinates; :func:`ncflow.geometry.barycentric.surface_points`).
    The carried value is *reliable* when the target vertex lies close to that point on the flowed
    source (``deformed_source``, the source moved onto the target) — distance at most
    ``max_distance``, by default 0.05 × the target's bounding-box diagonal, the paper's setting —
@@ -44,10 +44,10 @@ from scipy.sparse.linalg import splu
 
 from ncflow.errors import InputError
 from ncflow.flow.skinning import skinning_weights
+from ncflow.geometry.barycentric import surface_points
 from ncflow.geometry.laplacian import cotangent_laplacian, lumped_mass
 from ncflow.geometry.rigid import dense_weights
 from ncflow.io.gltf.skins import GltfSkin
-from ncflow.reuse.carry import interpolate
 
 __all__ = [
     "DEFAULT_MAX_DISTANCE",
@@ -229,11 +229,11 @@ def transfer_skin_weights(
     if not (math.isfinite(max_normal_angle) and 0 <= max_normal_angle <= 180):
         raise InputError(f"max_normal_angle must be in [0, 180] degrees, got {max_normal_angle}")
 
-    carried = interpolate(w, sf, face, bary)
-    mapped = interpolate(ds, sf, face, bary)
+    carried = surface_points(w, sf, face, bary)
+    mapped = surface_points(ds, sf, face, bary)
     near = np.linalg.norm(tv - mapped, axis=1) <= max_distance
     n_target = vertex_normals(tv, tf)
-    n_source = interpolate(vertex_normals(ds, sf), sf, face, bary)
+    n_source = surface_points(vertex_normals(ds, sf), sf, face, bary)
     norm = np.linalg.norm(n_source, axis=1)
     cos = np.einsum("ij,ij->i", n_target, n_source) / np.where(norm > 0, norm, 1.0)
     facing = (norm > 0) & (np.linalg.norm(n_target, axis=1) > 0) & (cos >= math.cos(math.radians(max_normal_angle)))
