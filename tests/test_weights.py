@@ -14,12 +14,12 @@ import trimesh
 
 from ncflow.errors import InputError
 from ncflow.geometry.laplacian import cotangent_laplacian, lumped_mass, mollified_lengths
+from ncflow.geometry.mesh import vertex_normals
 from ncflow.reuse.weights import (
     inpaint_weights,
     limit_influences,
     skeleton_weights,
     transfer_skin_weights,
-    vertex_normals,
 )
 
 

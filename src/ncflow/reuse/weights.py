@@ -46,6 +46,7 @@ from ncflow.errors import InputError
 from ncflow.flow.skinning import skinning_weights
 from ncflow.geometry.barycentric import surface_points
 from ncflow.geometry.laplacian import cotangent_laplacian, lumped_mass
+from ncflow.geometry.mesh import vertex_normals
 from ncflow.geometry.rigid import dense_weights
 from ncflow.io.gltf.skins import GltfSkin
 
@@ -58,7 +59,6 @@ __all__ = [
     "limit_influences",
     "skeleton_weights",
     "transfer_skin_weights",
-    "vertex_normals",
 ]
 
 DEFAULT_MAX_DISTANCE = 0.05
@@ -67,19 +67,6 @@ DEFAULT_MAX_NORMAL_ANGLE = 30.0
 """Reliability: largest angle (degrees) between the target's normal and the flowed source's."""
 DEFAULT_SKINNING_WIDTH = 0.05
 """τ of the skeleton-driven field's weights as a fraction of the median bone length (``flow.skinning_width``)."""
-
-
-def vertex_normals(vertices: Float[np.ndarray, "V 3"], faces: Int[np.ndarray, "F 3"]) -> Float[np.ndarray, "V 3"]:
-    """(V, 3) area-weighted unit vertex normals; zero for a vertex in no (non-degenerate) triangle."""
-    v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64)
-    p = v[f]
-    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])  # length = 2 × area
-    out = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(out, f[:, k], n)
-    norm = np.linalg.norm(out, axis=1, keepdims=True)
-    return np.divide(out, norm, out=np.zeros_like(out), where=norm > 0)
 
 
 def _components(faces: np.ndarray, n: int) -> np.ndarray:

@@ -35,6 +35,7 @@ import numpy as np
 from jaxtyping import Float, Int
 
 from ncflow.errors import ResultError
+from ncflow.geometry.mesh import vertex_normals
 from ncflow.io.arrays import as_faces, as_times
 from ncflow.io.gltf.writer import new_document, save_document
 
@@ -45,15 +46,10 @@ MAX_RIG_JOINTS = 65535
 
 
 def _normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    p = vertices[faces]
-    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    out = np.zeros_like(vertices)
-    for k in range(3):
-        np.add.at(out, faces[:, k], n)
-    norm = np.linalg.norm(out, axis=1, keepdims=True)
-    fallback = np.zeros_like(out)
-    fallback[:, 2] = 1.0  # a vertex in no proper triangle: any unit normal
-    return np.where(norm > 0, out / np.where(norm > 0, norm, 1.0), fallback)
+    """Unit vertex normals for the GLB; a vertex in no proper triangle gets +Z (glTF wants unit length)."""
+    n = vertex_normals(vertices, faces)
+    n[np.linalg.norm(n, axis=1) == 0] = (0.0, 0.0, 1.0)
+    return n
 
 
 def _check_points(name: str, array, rows: int | None = None) -> np.ndarray:
