@@ -537,6 +537,39 @@ def read_result(out_dir: str | os.PathLike, *, check_animation: bool = True) -> 
     }
 
 
+def result_target(
+    result: dict[str, Any], target: str | os.PathLike | None, result_dir: str | os.PathLike, *, replace: bool = True
+) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices, faces) of a result's target: the mesh file ``target`` when given, else ``target.ply``.
+
+    Args:
+        result: :func:`read_result` output.
+        target: a target mesh file (for results written without ``target.ply``), or None.
+        result_dir: the folder (named in the error when no target is available).
+        replace: whether ``target`` may replace an existing ``target.ply`` (else that is an error).
+
+    Raises:
+        InputError: no target at all, ``target`` given beside ``target.ply`` without ``replace``, or a
+            ``target`` whose vertex count is not the result's n_target.
+    """
+    if target is None:
+        if result["target_vertices"] is None:
+            raise InputError(
+                "the result has no target.ply (an older result); give the target mesh with --target", result_dir
+            )
+        return result["target_vertices"], result["target_faces"]
+    if not replace and result["target_vertices"] is not None:
+        raise InputError("--target is only for results without target.ply; this result has one", target)
+    mesh = load_mesh(target)
+    if mesh.n_vertices != result["n_target"]:
+        raise InputError(
+            f"has {mesh.n_vertices} vertices but the result maps {result['n_target']} target vertices "
+            "(not the target of this result)",
+            target,
+        )
+    return mesh.vertices, mesh.faces
+
+
 def _check_glb(path: Path, k: int, nv: int) -> None:
     import pygltflib
 

@@ -53,8 +53,7 @@ from ncflow.io.atomic import atomic_path, check_output_file
 from ncflow.io.gltf.document import unique_names
 from ncflow.io.gltf.rig_writer import write_rig_glb
 from ncflow.io.gltf.skins import load_gltf_skin
-from ncflow.io.meshes import load_mesh
-from ncflow.io.result import read_result
+from ncflow.io.result import read_result, result_target
 from ncflow.reuse.weights import (
     DEFAULT_MAX_DISTANCE,
     DEFAULT_SKINNING_WIDTH,
@@ -276,17 +275,7 @@ def rig_result(
             "with --skeleton",
             result_dir,
         )
-    if target is not None:
-        mesh = load_mesh(target)
-        if mesh.n_vertices != res["n_target"]:
-            raise InputError(
-                f"has {mesh.n_vertices} vertices but the result maps {res['n_target']} target vertices", target
-            )
-        tv, tf = mesh.vertices, mesh.faces
-    elif res["target_vertices"] is not None:
-        tv, tf = res["target_vertices"], res["target_faces"]
-    else:
-        raise InputError("the result has no target.ply (an older result): give the target mesh (--target)", result_dir)
+    tv, tf = result_target(res, target, result_dir)
     parents = skeleton.parents
     names = unique_names(list(sk_frames["names"] or skeleton.names or [None] * skeleton.n_joints))
     frames = res["frames"]

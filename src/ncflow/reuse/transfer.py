@@ -35,10 +35,9 @@ from ncflow.geometry.barycentric import round_to_vertex, surface_points, vertex_
 from ncflow.geometry.closest import closest_points_on_surface
 from ncflow.io.atomic import check_output_file
 from ncflow.io.landmarks import landmark_arrays, read_landmarks, write_landmarks
-from ncflow.io.meshes import load_mesh
 from ncflow.io.obj_uv import read_obj_uv, write_obj_uv
 from ncflow.io.ply_properties import PLY_TYPES, PlyVertexProperties, read_ply_vertex_properties, write_ply_properties
-from ncflow.io.result import CONTRACT_FILES, read_result
+from ncflow.io.result import CONTRACT_FILES, read_result, result_target
 from ncflow.io.vertex_arrays import read_vertex_array, write_vertex_array
 from ncflow.reuse.uv import UVTransfer, transfer_uv
 
@@ -297,25 +296,6 @@ def resolve_kind(attributes: str | os.PathLike, kind: str, out: str | os.PathLik
     return kind if kind != "auto" or len(kinds) > 1 else kinds[0]
 
 
-def _target_mesh(res: dict, target, result_dir) -> tuple[np.ndarray, np.ndarray]:
-    """(vertices, faces) of the target: the result's target.ply, else the ``target`` mesh file."""
-    if res["target_vertices"] is not None:
-        if target is not None:
-            raise InputError("--target is only for results without target.ply; this result has one", target)
-        return res["target_vertices"], res["target_faces"]
-    if target is None:
-        raise InputError(
-            "the result has no target.ply (an older result); give the target mesh with --target", result_dir
-        )
-    mesh = load_mesh(target)
-    if mesh.n_vertices != res["n_target"]:
-        raise InputError(
-            f"the target has {mesh.n_vertices} vertices but the result's map has {res['n_target']} target vertices",
-            target,
-        )
-    return mesh.vertices, mesh.faces
-
-
 def _check_out(out: Path, result_dir: Path, overwrite: bool) -> Path:
     """The output file checked before any work (not a folder, writable, not a result file; --overwrite)."""
     real = check_output_file(out, option="--out")
@@ -327,7 +307,7 @@ def _check_out(out: Path, result_dir: Path, overwrite: bool) -> Path:
     return real
 
 
-def _array_transfer(kind, attributes, n_source, res, target, result_dir, rule, max_distance, max_normal_angle):
+def _array_transfer(kind, attributes, n_source, res, result_dir, rule, max_distance, max_normal_angle):
     """(array to write, kind, details) for .npy / .txt attributes."""
     arr = read_vertex_array(attributes, n_source)
     face, bary, sf = res["map_face"], res["map_bary"], res["source_faces"]
@@ -353,7 +333,7 @@ def _array_transfer(kind, attributes, n_source, res, target, result_dir, rule, m
         )
     from ncflow.reuse.weights import transfer_skin_weights
 
-    tv, tf = _target_mesh(res, target, result_dir)
+    tv, tf = result_target(res, None, result_dir)
     weights, reliable = transfer_skin_weights(
         w,
         res["frames"][0],
@@ -416,12 +396,12 @@ def transfer(
     real_out = _check_out(out, result_dir, overwrite)
     res = read_result(result_dir, check_animation=False)
     n_source, n_target = res["n_source"], res["n_target"]
-    if target is not None:  # checked whatever the kind needs
-        _target_mesh(res, target, result_dir)
+    if target is not None:  # read once, and checked whatever the kind needs
+        res["target_vertices"], res["target_faces"] = result_target(res, target, result_dir, replace=False)
     sv, sf, face, bary = res["frames"][0], res["source_faces"], res["map_face"], res["map_bary"]
     if kind in ("auto", "values", "labels", "weights"):
         arr, kind, details = _array_transfer(
-            kind, attributes, n_source, res, target, result_dir, label_rule, max_distance, max_normal_angle
+            kind, attributes, n_source, res, result_dir, label_rule, max_distance, max_normal_angle
         )
         write_vertex_array(real_out, arr)
     elif kind == "uv":
@@ -432,7 +412,7 @@ def transfer(
                 f"({n_source} vertices, {sf.shape[0]} faces, same order): give the source mesh that was matched",
                 attributes,
             )
-        tv, tf = _target_mesh(res, target, result_dir)
+        tv, tf = result_target(res, None, result_dir)
         uv = transfer_uv(sv, sf, mesh.uvs, mesh.uv_faces, face, bary, tf)
         write_obj_uv(real_out, tv, tf, uv.uvs, uv.uv_faces)
         details = {"seam_faces": uv.n_seam_faces}
@@ -443,12 +423,12 @@ def transfer(
         carried = transfer_properties(props, sf, face, bary, label_rule)
         if not carried:
             raise InputError("no vertex properties to transfer (only positions and normals)", attributes)
-        tv, tf = _target_mesh(res, target, result_dir)
+        tv, tf = result_target(res, None, result_dir)
         write_ply_properties(real_out, tv, tf, carried)
         details = {"properties": [name for name, _, _ in carried]}
     else:
         landmarks = read_landmarks(attributes, n_source)
-        tv, tf = _target_mesh(res, target, result_dir)
+        tv, tf = result_target(res, None, result_dir)
         vertex, point = landmark_arrays(landmarks)
         carried = carry_landmarks(vertex, point, sv, sf, res["deformed_source"], tv, tf)
         write_landmarks(real_out, _landmark_record(landmarks, carried, n_target))

@@ -427,8 +427,7 @@ def write_view(
     """
     from ncflow.io.atomic import atomic_write_bytes
     from ncflow.io.ground_truth import load_ground_truth
-    from ncflow.io.meshes import load_mesh
-    from ncflow.io.result import read_result
+    from ncflow.io.result import read_result, result_target
 
     result_dir = Path(result_dir)
     _check_budget(max_display_vertices, "the vertex budget (--max-vertices)", 100)
@@ -436,19 +435,7 @@ def write_view(
     out = check_view_output(result_dir / "view.html" if out_html is None else out_html, overwrite)
     result = read_result(result_dir, check_animation=False)
     _check_barycentric(result["map_bary"], result_dir / "map_tgt_to_src.npz")
-    if target is not None:
-        mesh = load_mesh(target)
-        if mesh.n_vertices != result["n_target"]:
-            raise InputError(
-                f"has {mesh.n_vertices} vertices but the result maps {result['n_target']} target vertices "
-                "(not the target of this result)",
-                target,
-            )
-        result["target_vertices"], result["target_faces"] = mesh.vertices, mesh.faces
-    elif result["target_vertices"] is None:
-        raise InputError(
-            "the result has no target.ply (an older result); pass the target mesh with --target", result_dir
-        )
+    result["target_vertices"], result["target_faces"] = result_target(result, target, result_dir)
     errors = None
     if gt is not None:
         source = Mesh(result["frames"][0], result["source_faces"], name=str(result_dir / "frames" / "frame_0000.ply"))
