@@ -1,13 +1,21 @@
 """Articulated initialisation (ncflow.match.pose_search): search, not descent, for the target's pose."""
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from ncflow.geometry.normalize import fit_normalization
-from ncflow.match.pose_search import chain_hypotheses, joint_hypotheses, search_pose, search_poses
+from ncflow.match.pose_search import (
+    chain_hypotheses,
+    exchangeable_limbs,
+    exchanged,
+    joint_hypotheses,
+    search_pose,
+    search_poses,
+)
 from ncflow.skeleton import Skeleton
-from ncflow.skeleton.kinematics import forward_kinematics, joint_positions
+from ncflow.skeleton.kinematics import Pose, forward_kinematics, joint_positions
 from ncflow.synthetic.shapes import bend, capsule
 
 
@@ -101,3 +109,72 @@ def test_scores_of_several_placements_compare_and_pick_the_true_one():
     right, same, bad = search_poses(skel, s, fs, [t, (t @ turn.T) @ turn, wrong], ft, skinning_width=w)
     assert right.score == pytest.approx(same.score, abs=1e-4)
     assert right.score < bad.score
+
+
+def _legs_problem(source_swing, target_swing):
+    """A torso on two capsule legs hanging from hips at x = ±0.45, each leg swung about x by its
+    angle (degrees; left, right) in the source and in the target, tessellated differently."""
+
+    def figure(swing, n_around, n_along):
+        parts = [capsule(radius=0.3, length=1.4, n_around=n_around, n_along=n_along)]
+        parts[0] = (parts[0][0] + [0.0, 0.0, 1.1], parts[0][1])
+        feet = []
+        for x, deg in zip((-0.45, 0.45), swing):
+            v, f = capsule(radius=0.2, length=1.6, n_around=n_around, n_along=n_along)
+            turn = Rotation.from_rotvec([np.radians(deg), 0.0, 0.0])
+            parts.append((turn.apply(v + [0.0, 0.0, -0.95]) + [x, 0.0, 0.0], f))
+            feet.append(turn.apply([0.0, 0.0, -1.8]) + [x, 0.0, 0.0])
+        verts, faces, n = [], [], 0
+        for v, f in parts:
+            verts.append(v)
+            faces.append(f + n)
+            n += v.shape[0]
+        joints = np.array([[0, 0, 0.0], [0, 0, 1.9], [-0.45, 0, 0], feet[0], [0.45, 0, 0], feet[1]])
+        return np.vstack(verts), np.vstack(faces), joints
+
+    vs, fs, js = figure(source_swing, 12, 14)
+    vt, ft, jt = figure(target_swing, 13, 11)
+    norm = fit_normalization(vs, fs)
+    skel = Skeleton.from_arrays(norm.apply(js), np.array([-1, 0, 0, 2, 0, 4]))
+    return skel, norm.apply(vs), fs, norm.apply(vt), ft, norm.apply(jt)
+
+
+def test_exchangeable_limbs_pair_same_shaped_siblings_only():
+    skel, *_ = _legs_problem((40.0, -40.0), (40.0, -40.0))
+    pairs = exchangeable_limbs(skel)
+    names = [sorted((a.tolist(), b.tolist())) for a, b in pairs]
+    assert names == [[[2, 3], [4, 5]]]  # the legs; not the torso (one joint, no bone below it)
+    lopsided = Skeleton.from_arrays(
+        np.array([[0, 0, 0.0], [-1, 0, 0], [-1, 0, -1], [1, 0, 0], [1, 0, -3]]), np.array([-1, 0, 1, 0, 3])
+    )
+    assert exchangeable_limbs(lopsided) == []  # same shape, lengths 1 and 3: not a left/right pair
+
+
+def test_exchanged_limbs_take_each_others_bone_directions():
+    """Each limb's bones point where the other's did; no other joint moves (a random pose)."""
+    skel, *_ = _legs_problem((40.0, -40.0), (40.0, -40.0))
+    rng = np.random.default_rng(3)
+    rot = Rotation.from_rotvec(rng.normal(size=(skel.n_joints, 3)) * 0.4).as_quat(scalar_first=True)
+    ((a, b),) = exchangeable_limbs(skel)
+    new = exchanged(skel, rot, a, b)
+    before = np.asarray(joint_positions(forward_kinematics(skel, Pose(jnp.asarray(rot), jnp.zeros(3)))), np.float64)
+    after = np.asarray(joint_positions(forward_kinematics(skel, Pose(jnp.asarray(new), jnp.zeros(3)))), np.float64)
+    for mine, other in ((a, b), (b, a)):
+        d_new, d_old = after[mine[1]] - after[mine[0]], before[other[1]] - before[other[0]]
+        cos = d_new @ d_old / np.linalg.norm(d_new) / np.linalg.norm(d_old)
+        assert cos == pytest.approx(1.0, abs=1e-5)
+    others = np.setdiff1d(np.arange(skel.n_joints), np.concatenate([a[1:], b[1:]]))
+    np.testing.assert_allclose(after[others], before[others], atol=1e-5)
+    back = exchanged(skel, new, a, b)  # twice: every joint back where it was (the twist is not kept)
+    again = np.asarray(joint_positions(forward_kinematics(skel, Pose(jnp.asarray(back), jnp.zeros(3)))), np.float64)
+    np.testing.assert_allclose(again, before, atol=1e-5)
+
+
+def test_search_finds_legs_swung_the_other_way():
+    """Source mid-stride (left leg forward, right back), target the opposite stride: every bone of
+    the pose found within 10° of the target's."""
+    skel, s, fs, t, ft, truth = _legs_problem((55.0, -55.0), (-55.0, 55.0))
+    res = search_pose(skel, s, fs, t, ft, skinning_width=0.05 * float(np.median(skel.bone_lengths)))
+    found = np.asarray(joint_positions(forward_kinematics(skel, res.pose)), np.float64)
+    err = _bone_angles(skel, found, truth)
+    assert err.max() < 10.0, err

@@ -19,9 +19,17 @@ descends) for the pose of the source skeleton whose skinned source best matches 
   ``beam`` poses found so far; all hypotheses of a joint are scored in one jitted batch and the best
   ``beam`` complete poses are kept, so a choice that only pays off once a later joint has moved
   (left and right limbs exchanged, a finger bent back) survives until it does;
-* the surviving poses are refined by gradient descent on the same score (coarse, then finer σ) and the
-  best one initialises the field's pose (and the per-step pose fit); the rest pose is kept when
-  nothing explains the target better.
+* limbs hanging from the same joint with the same shape (left and right legs, fingers;
+  :func:`exchangeable_limbs`) are also tried exchanged, each taking the other's bone directions
+  (:func:`exchanged`), before their own joints are searched: the legs of a walking animal swap
+  between two poses, and bending one leg while the other is still in its place scores worse than
+  leaving it;
+* three such searches run — at σ = 0.3 without and with the exchanges, and at σ = 0.15, where
+  fingers or legs side by side no longer blur into one — and their distinct survivors are refined
+  by gradient descent on the same score (coarse, then finer σ); the best one initialises the
+  field's pose (and the per-step pose fit); the rest pose is kept when nothing explains the
+  target better. A placement that the first search already rates far behind the best one is not
+  searched further.
 
 The ``paper`` preset (no skeleton-driven field) does not use it: there the pose only enters the
 constraints, which are refitted at every step.
@@ -30,6 +38,7 @@ constraints, which are refitted at every step.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Sequence
 
 import jax
@@ -44,7 +53,7 @@ from ncflow.match.placement import surface_diracs
 from ncflow.measures.varifold import Varifold, varifold_inner
 from ncflow.skeleton import Skeleton
 from ncflow.skeleton.dualquat import dq_rotation, dq_translation, quat_mul, quat_to_matrix
-from ncflow.skeleton.kinematics import Pose, bone_motions, rest_pose
+from ncflow.skeleton.kinematics import Pose, bone_motions, forward_kinematics, joint_positions, rest_pose
 
 
 @dataclasses.dataclass(frozen=True)
@@ -136,6 +145,78 @@ def chain_hypotheses(skeleton: Skeleton, joint: int) -> tuple[Float[np.ndarray, 
     return np.concatenate([single, q1]), np.concatenate([ident, q2]), int(children[0])
 
 
+def exchangeable_limbs(skeleton: Skeleton, length_ratio: float = 1.5) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Pairs of limbs the search tries exchanging: subtrees hanging from the same joint with the same
+    shape (a chain of as many joints, or the same branching) whose bone lengths sum to within
+    ``length_ratio`` of each other — left and right legs, arms, fingers. Each pair is two arrays
+    of joint indices in matching depth-first order, the limb's first joint first.
+    """
+    parents = np.asarray(skeleton.parents)
+    children = [np.flatnonzero(parents == j).tolist() for j in range(skeleton.n_joints)]
+    lengths = np.concatenate([[0.0], skeleton.bone_lengths])
+
+    def shape(j):
+        return tuple(shape(c) for c in children[j])
+
+    def order(j):
+        return [j] + [k for c in children[j] for k in order(c)]
+
+    pairs = []
+    for kids in children:
+        for i, a in enumerate(kids):
+            for b in kids[i + 1 :]:
+                if not children[a] or shape(a) != shape(b):
+                    continue
+                la, lb = order(a), order(b)
+                sa, sb = lengths[la[1:]].sum(), lengths[lb[1:]].sum()
+                if max(sa, sb) <= length_ratio * max(min(sa, sb), 1e-12):
+                    pairs.append((np.asarray(la), np.asarray(lb)))
+    return pairs
+
+
+def _world(skeleton: Skeleton, rotations: np.ndarray) -> tuple[Rotation, np.ndarray]:
+    """World rotations and joint positions (root at its rest place) of local rotations (J, 4), in
+    float64 on the host: :func:`~ncflow.skeleton.kinematics.forward_kinematics` (G_j = G_parent L_j)
+    for the few poses of an exchange step, without a device round trip per pose.
+    """
+    parents, off = np.asarray(skeleton.parents), np.asarray(skeleton.offsets)
+    local = Rotation.from_quat(rotations, scalar_first=True)
+    world, pos = [None] * skeleton.n_joints, np.zeros((skeleton.n_joints, 3))
+    for j in np.concatenate(skeleton.levels):
+        p = parents[j]
+        world[j] = local[j] if p < 0 else world[p] * local[j]
+        pos[j] = off[j] if p < 0 else pos[p] + world[p].apply(off[j])
+    return Rotation.concatenate(world), pos
+
+
+def exchanged(
+    skeleton: Skeleton, rotations: Float[np.ndarray, "J 4"], a: np.ndarray, b: np.ndarray
+) -> Float[np.ndarray, "J 4"]:
+    """Local rotations (J, 4) with limbs ``a`` and ``b`` (:func:`exchangeable_limbs`) exchanged: every
+    joint of one limb turns its bone (towards the mean of its children) to the world direction of the
+    matching bone of the other, by the smallest rotation from rest; the rest of the pose is kept.
+    """
+    world, pos = _world(skeleton, rotations)
+    parents, off = np.asarray(skeleton.parents), np.asarray(skeleton.offsets)
+    new_world = {j: world[j] for j in range(skeleton.n_joints)}
+    out = np.array(rotations, np.float64)
+    for mine, other in ((a, b), (b, a)):
+        to_other = dict(zip(mine.tolist(), other.tolist()))
+        for j in mine.tolist():
+            kids = np.flatnonzero(parents == j)
+            if kids.size == 0:
+                continue
+            k = to_other[j]
+            aim = pos[[to_other[c] for c in kids.tolist()]].mean(0) - pos[k]
+            rest = off[kids].mean(0)
+            if np.linalg.norm(aim) < 1e-9 or np.linalg.norm(rest) < 1e-9:
+                continue
+            turn = Rotation.align_vectors(aim[None], rest[None])[0]
+            new_world[j] = turn
+            out[j] = (new_world[parents[j]].inv() * turn).as_quat(scalar_first=True)
+    return out
+
+
 def _skinned(skeleton, weights, x: Varifold, pose: Pose) -> Varifold:
     m = bone_motions(skeleton, swing_only(skeleton, pose), jnp.asarray(1.0, pose.rotations.dtype))
     r, c = quat_to_matrix(dq_rotation(m)), dq_translation(m)  # (B, 3, 3), (B, 3)
@@ -143,6 +224,36 @@ def _skinned(skeleton, weights, x: Varifold, pose: Pose) -> Varifold:
     normals = jnp.einsum("nb,bij,nj->ni", weights, r, x.normals)
     normals = normals / jnp.maximum(jnp.linalg.norm(normals, axis=-1, keepdims=True), 1e-12)
     return Varifold(centers, normals, x.weights)
+
+
+def _exchange_step(skeleton, beams: Pose, n_real: int, limbs, sigma, score, y, min_move: float = 0.25):
+    """Each real beam pose and its copy with ``limbs`` exchanged (:func:`exchanged`), scored; the best
+    ``beam`` kept. A copy whose joints move by less than ``min_move`` × the limbs' length (two
+    straight fingers side by side) is not a different hypothesis and is not kept. Returns the new beam,
+    its number of distinct poses and the number of poses scored.
+    """
+    beam = beams.rotations.shape[0]
+    a, b = limbs
+    rot = np.asarray(beams.rotations, np.float64)
+    length = skeleton.bone_lengths[np.concatenate([a[1:], b[1:]]) - 1].sum() / 2.0
+    swapped, distinct = rot.copy(), np.zeros(beam, bool)
+    for i in range(n_real):
+        swapped[i] = exchanged(skeleton, rot[i], a, b)
+        move = np.linalg.norm(_world(skeleton, swapped[i])[1] - _world(skeleton, rot[i])[1], axis=1).max()
+        distinct[i] = move >= min_move * length
+    if not distinct.any():
+        return beams, n_real, 0
+    cand = Pose(
+        jnp.concatenate([beams.rotations, jnp.asarray(swapped, beams.rotations.dtype)]),
+        jnp.concatenate([beams.translation, beams.translation]),
+    )
+    s = np.array(score(cand, sigma, y), np.float64)
+    s[n_real:beam] = np.inf
+    s[beam:][~distinct] = np.inf
+    n_new = n_real + int(distinct.sum())
+    keep = np.argsort(s, kind="stable")[: min(beam, n_new)]
+    keep = np.concatenate([keep, np.repeat(keep[:1], beam - keep.size)])
+    return Pose(cand.rotations[keep], cand.translation[keep]), min(beam, n_new), int(distinct.sum())
 
 
 def search_pose(
@@ -185,9 +296,12 @@ def search_poses(
     target_faces: Int[np.ndarray, "G 3"],
     *,
     skinning_width: float,
-    sigma_search: float = 0.3,
+    searches: tuple[tuple[float, bool], ...] = ((0.3, False), (0.3, True), (0.15, False)),
     sigmas_refine: tuple[float, ...] = (0.3, 0.15),
     beam: int = 4,
+    refined: int = 8,
+    placement_ratio: float = 1.3,
+    distinct: float = 0.02,
     refine_steps: int = 100,
     n_search: int = 600,
     n_refine: int = 1200,
@@ -206,9 +320,14 @@ def search_poses(
         target_candidates: C arrays (W, 3): the normalised target, placed in each candidate way.
         target_faces: (G, 3) target faces.
         skinning_width: τ of the bone weights (as :class:`~ncflow.flow.SkinnedField`).
-        sigma_search: kernel scale of the discrete search.
+        searches: the discrete searches run, each (kernel scale, whether limb exchanges are tried);
+            their beams are refined together and the best refined pose wins.
         sigmas_refine: kernel scales of the gradient refinement, in turn.
         beam: number of complete poses kept between joints.
+        refined: number of distinct poses of the pooled beams refined (the rest pose besides).
+        distinct: two poses whose joints all lie within this distance are one.
+        placement_ratio: a placement whose first search scores above this multiple of the best
+            placement's is not searched further; its result has an infinite score.
         refine_steps: gradient steps per refinement scale.
         n_search: Diracs per surface in the discrete search.
         n_refine: Diracs per surface in the refinement.
@@ -239,16 +358,19 @@ def search_poses(
     rest = rest_pose(skeleton, dt)
     # lax.map, not vmap: a batch of blocked kernel sums runs ~6× faster one after the other on CPU
     score_fine = jax.jit(lambda poses, s, y: jax.lax.map(lambda p: distance(p, s, src_fine, y), poses))
+    score_coarse = jax.jit(
+        lambda poses, s, y: jax.lax.map(lambda p: distance(p, s, src_coarse, y), poses), static_argnums=1
+    )
 
-    @jax.jit
-    def expand(rotations, translations, hyp, hyp_child, j, c, y):
+    @functools.partial(jax.jit, static_argnums=6)
+    def expand(rotations, translations, hyp, hyp_child, j, c, sigma, y):
         """Every beam pose × every local rotation pair of joint j and its child c, and their scores."""
         nb, nh = rotations.shape[0], hyp.shape[0]
         rot = jnp.repeat(rotations, nh, axis=0)
         rot = rot.at[:, j].set(quat_mul(rot[:, j], jnp.tile(hyp, (nb, 1))))
         rot = rot.at[:, c].set(quat_mul(rot[:, c], jnp.tile(hyp_child, (nb, 1))))
         cand = Pose(rot, jnp.repeat(translations, nh, axis=0))
-        return cand, jax.lax.map(lambda p: distance(p, sigma_search, src_coarse, y), cand)
+        return cand, jax.lax.map(lambda p: distance(p, sigma, src_coarse, y), cand)
 
     opt = optax.adam(0.01)
 
@@ -280,14 +402,26 @@ def search_poses(
         return jnp.asarray(np.vstack([q, np.tile([1.0, 0.0, 0.0, 0.0], (n_hyp - q.shape[0], 1))]), dt)
 
     searched = [(j, h.shape[0], padded(h), padded(hc), c) for j, h, hc, c in searched]
-    results = []
-    for target_vertices in target_candidates:
-        y_coarse = surface_diracs(target_vertices, target_faces, n_search, seed + 3)
-        y_fine = surface_diracs(target_vertices, target_faces, n_refine, seed + 5)
+    # limb exchanges go before the first joint of the limbs' level (their parent posed, they not yet)
+    depth = skeleton.depth
+    limbs = exchangeable_limbs(skeleton) if discrete else []
+    plan = []
+    for step in searched:
+        plan += [limb for limb in limbs if depth[limb[0][0]] == depth[step[0]] and not any(limb is q for q in plan)]
+        plan.append(step)
+
+    def beam_search(sigma, exchange, y_coarse):
+        """The best ``beam`` poses down the tree (rows past the distinct count repeat the best)."""
         beams = Pose(jnp.repeat(rest.rotations[None], beam, 0), jnp.repeat(rest.translation[None], beam, 0))
-        n_real, n_scored = 1, 1
-        for j, n_h, hyp, hyp_child, c in searched:
-            cand, s = expand(beams.rotations, beams.translation, hyp, hyp_child, j, c, y_coarse)
+        n_real, n_scored = 1, 0
+        for step in plan:
+            if len(step) == 2:  # a limb exchange: each beam pose with and without it
+                if exchange:
+                    beams, n_real, n_new = _exchange_step(skeleton, beams, n_real, step, sigma, score_coarse, y_coarse)
+                    n_scored += n_new
+                continue
+            j, n_h, hyp, hyp_child, c = step
+            cand, s = expand(beams.rotations, beams.translation, hyp, hyp_child, j, c, sigma, y_coarse)
             s = np.array(s, np.float64).reshape(beam, n_hyp)
             s[n_real:], s[:, n_h:] = np.inf, np.inf
             s = s.ravel()
@@ -296,16 +430,63 @@ def search_poses(
             keep = np.concatenate([keep, np.repeat(keep[:1], beam - keep.size)])  # pad with the best
             n_real = min(beam, n_real * n_h)
             beams = Pose(cand.rotations[keep], cand.translation[keep])
-        candidates = Pose(
-            jnp.concatenate([beams.rotations, rest.rotations[None]]),
-            jnp.concatenate([beams.translation, rest.translation[None]]),
+        return beams, n_real, n_scored
+
+    rest_beam = (Pose(jnp.repeat(rest.rotations[None], beam, 0), jnp.repeat(rest.translation[None], beam, 0)), 0, 0)
+
+    def pool(found):
+        """All searches' beams and the rest pose in one fixed-shape stack, and which rows are real."""
+        found = list(found) + [rest_beam] * (len(searches) - len(found))
+        pooled = Pose(
+            jnp.concatenate([b.rotations for b, _, _ in found] + [rest.rotations[None]]),
+            jnp.concatenate([b.translation for b, _, _ in found] + [rest.translation[None]]),
         )
+        return pooled, np.concatenate([np.arange(beam) < n for _, n, _ in found] + [[True]])
+
+    n_refined = min(refined, len(searches) * beam)
+    # every placement gets the first search; the others and the refinement only the placements it
+    # rates within ``placement_ratio`` of the best (a placement turned the wrong way is far behind)
+    staged = []
+    for target_vertices in target_candidates:
+        y_coarse = surface_diracs(target_vertices, target_faces, n_search, seed + 3)
+        y_fine = surface_diracs(target_vertices, target_faces, n_refine, seed + 5)
+        found = [beam_search(float(searches[0][0]), bool(searches[0][1]), y_coarse)]
+        pooled, valid = pool(found)
+        first = np.array(score_fine(pooled, float(sigmas_refine[0]), y_fine), np.float64)
+        first[~valid] = np.inf
+        staged.append((y_coarse, y_fine, found, first))
+    best_first = min(float(f.min()) for *_, f in staged)
+    results = []
+    for y_coarse, y_fine, found, first in staged:
+        if len(staged) > 1 and first.min() > placement_ratio * best_first:
+            results.append(PoseSearchResult(rest, np.inf, np.inf, 1 + found[0][2]))
+            continue
+        found += [beam_search(float(sigma), bool(exchange), y_coarse) for sigma, exchange in searches[1:]]
+        n_scored = 1 + sum(f[2] for f in found)
+        pooled, valid = pool(found)
+        # the searches often agree: refine at most ``refined`` distinct poses, best scored first
+        first = np.array(score_fine(pooled, float(sigmas_refine[0]), y_fine), np.float64)
+        first[~valid] = np.inf
+        joints = np.asarray(joint_positions(jax.vmap(lambda p: forward_kinematics(skeleton, p))(pooled)))
+        picked = []
+        for i in np.argsort(first[:-1], kind="stable"):
+            if np.isfinite(first[i]) and len(picked) < n_refined:
+                if all(np.abs(joints[i] - joints[k]).max() > distinct for k in picked):
+                    picked.append(int(i))
+        rows = np.array(picked + [pooled.rotations.shape[0] - 1] * (n_refined + 1 - len(picked)))
+        candidates = Pose(pooled.rotations[rows], pooled.translation[rows])
         for sigma in sigmas_refine:
             candidates = refine_all(candidates, float(sigma), y_fine)
-        final = np.array(score_fine(candidates, float(sigmas_refine[-1]), y_fine), np.float64)
-        final[n_real:beam] = np.inf  # copies
-        rests = Pose(jnp.repeat(rest.rotations[None], beam + 1, 0), jnp.repeat(rest.translation[None], beam + 1, 0))
+        final = np.full(valid.size, np.inf)  # scored in the pooled shape: one compiled scorer
+        padded = Pose(
+            jnp.concatenate([candidates.rotations, pooled.rotations[rows.size :]]),
+            jnp.concatenate([candidates.translation, pooled.translation[rows.size :]]),
+        )
+        final[: rows.size] = np.array(score_fine(padded, float(sigmas_refine[-1]), y_fine), np.float64)[: rows.size]
+        final[len(picked) : rows.size - 1] = np.inf  # copies of the rest pose
+        rests = Pose(jnp.repeat(rest.rotations[None], valid.size, 0), jnp.repeat(rest.translation[None], valid.size, 0))
         rest_score = float(np.asarray(score_fine(rests, float(sigmas_refine[-1]), y_fine))[0])
+        candidates = padded
         best = int(np.argmin(final))
         if final[best] >= rest_score:
             results.append(PoseSearchResult(rest, rest_score, rest_score, n_scored))
