@@ -125,6 +125,9 @@ def test_engine_retries_once_and_survives_dead_workers(tmp_path):
     seen = []
     with open_client(2) as (client, info):
         assert info["kind"] == "local" and info["workers"] == 2 and info["threads_per_worker"] == 1
+        env = client.run(lambda: (os.environ.get("MALLOC_TRIM_THRESHOLD_"), os.environ.get("PJRT_NPROC")))
+        # Dask's nanny would set MALLOC_TRIM_THRESHOLD_, which makes XLA:CPU's allocations 4x slower
+        assert sorted(env.values()) == [(None, "1"), (None, "1")]
         out = run_tasks(
             client,
             [Task(k, fake_task, (k, str(tmp_path))) for k in kinds],
@@ -394,6 +397,8 @@ def dask_cluster(tmp_path):
 
         with Client(address, timeout=30) as c:
             c.wait_for_workers(2, timeout=90)
+            env = c.run(lambda: (os.environ.get("MALLOC_TRIM_THRESHOLD_"), os.environ.get("PJRT_NPROC")))
+            assert sorted(env.values()) == [(None, "1"), (None, "1")]  # worker_environment reaches the workers
         yield address
     finally:
         for p in reversed(procs):  # workers killed outright, the scheduler asked to stop
