@@ -41,10 +41,7 @@ def main() -> None:
         truth = prob.placement.apply(prob.normalization.apply(load_skeleton(p / "target_skeleton.tgf").positions))
         found = np.asarray(joint_positions(forward_kinematics(prob.skeleton_normalized, prob.pose_search.pose)))
         err = np.linalg.norm(found - truth, axis=1)
-        tried = " ".join(
-            f"{t['angle_degrees']:.0f}°: {t['pose_score'] if t['pose_score'] is None else round(t['pose_score'], 3)}"
-            for t in prob.placement_trials
-        )
+        tried = " ".join(f"{t['angle_degrees']:.0f}°: {t['pose_score']:.3f}" for t in prob.placement_trials)
         print(f"| {name} | {err.mean():.3f} / {err.max():.3f} | {tried} | {time.perf_counter() - t0:.0f} |", flush=True)
 
 

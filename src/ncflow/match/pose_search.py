@@ -28,8 +28,7 @@ descends) for the pose of the source skeleton whose skinned source best matches 
   fingers or legs side by side no longer blur into one — and their distinct survivors are refined
   by gradient descent on the same score (coarse, then finer σ); the best one initialises the
   field's pose (and the per-step pose fit); the rest pose is kept when nothing explains the
-  target better. A placement that the first search already rates far behind the best one is not
-  searched further.
+  target better.
 
 The ``paper`` preset (no skeleton-driven field) does not use it: there the pose only enters the
 constraints, which are refitted at every step.
@@ -300,7 +299,6 @@ def search_poses(
     sigmas_refine: tuple[float, ...] = (0.3, 0.15),
     beam: int = 4,
     refined: int = 8,
-    placement_ratio: float = 1.3,
     distinct: float = 0.02,
     refine_steps: int = 100,
     n_search: int = 600,
@@ -326,8 +324,6 @@ def search_poses(
         beam: number of complete poses kept between joints.
         refined: number of distinct poses of the pooled beams refined (the rest pose besides).
         distinct: two poses whose joints all lie within this distance are one.
-        placement_ratio: a placement whose first search scores above this multiple of the best
-            placement's is not searched further; its result has an infinite score.
         refine_steps: gradient steps per refinement scale.
         n_search: Diracs per surface in the discrete search.
         n_refine: Diracs per surface in the refinement.
@@ -444,24 +440,11 @@ def search_poses(
         return pooled, np.concatenate([np.arange(beam) < n for _, n, _ in found] + [[True]])
 
     n_refined = min(refined, len(searches) * beam)
-    # every placement gets the first search; the others and the refinement only the placements it
-    # rates within ``placement_ratio`` of the best (a placement turned the wrong way is far behind)
-    staged = []
+    results = []
     for target_vertices in target_candidates:
         y_coarse = surface_diracs(target_vertices, target_faces, n_search, seed + 3)
         y_fine = surface_diracs(target_vertices, target_faces, n_refine, seed + 5)
-        found = [beam_search(float(searches[0][0]), bool(searches[0][1]), y_coarse)]
-        pooled, valid = pool(found)
-        first = np.array(score_fine(pooled, float(sigmas_refine[0]), y_fine), np.float64)
-        first[~valid] = np.inf
-        staged.append((y_coarse, y_fine, found, first))
-    best_first = min(float(f.min()) for *_, f in staged)
-    results = []
-    for y_coarse, y_fine, found, first in staged:
-        if len(staged) > 1 and first.min() > placement_ratio * best_first:
-            results.append(PoseSearchResult(rest, np.inf, np.inf, 1 + found[0][2]))
-            continue
-        found += [beam_search(float(sigma), bool(exchange), y_coarse) for sigma, exchange in searches[1:]]
+        found = [beam_search(float(sigma), bool(exchange), y_coarse) for sigma, exchange in searches]
         n_scored = 1 + sum(f[2] for f in found)
         pooled, valid = pool(found)
         # the searches often agree: refine at most ``refined`` distinct poses, best scored first

@@ -151,11 +151,7 @@ def place_and_pose(src_v, src_f, tgt_v, tgt_f, skeleton: Skeleton, config, messa
     )
     best = int(np.argmin([r.score for r in results]))
     trials = tuple(
-        {
-            "angle_degrees": pl.to_dict()["angle_degrees"],
-            "rigid_score": pl.score,
-            "pose_score": r.score if np.isfinite(r.score) else None,  # None: not searched further
-        }
+        {"angle_degrees": pl.to_dict()["angle_degrees"], "rigid_score": pl.score, "pose_score": r.score}
         for pl, r in zip(placements, results)
     )
     return placements[best], results[best], trials, t_place, time.perf_counter() - t0
