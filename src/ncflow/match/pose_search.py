@@ -428,11 +428,8 @@ def search_poses(
             beams = Pose(cand.rotations[keep], cand.translation[keep])
         return beams, n_real, n_scored
 
-    rest_beam = (Pose(jnp.repeat(rest.rotations[None], beam, 0), jnp.repeat(rest.translation[None], beam, 0)), 0, 0)
-
     def pool(found):
-        """All searches' beams and the rest pose in one fixed-shape stack, and which rows are real."""
-        found = list(found) + [rest_beam] * (len(searches) - len(found))
+        """All searches' beams and the rest pose in one stack, and which rows are real."""
         pooled = Pose(
             jnp.concatenate([b.rotations for b, _, _ in found] + [rest.rotations[None]]),
             jnp.concatenate([b.translation for b, _, _ in found] + [rest.translation[None]]),
