@@ -72,7 +72,20 @@ def one(size: int, preset_name: str, overrides: list[str]) -> dict:
         "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2,
         "geodesic_auc": ev["geodesic"]["auc"],
         "device": result.metrics["versions"]["device"],
+        "accelerator_peak_gb": _accelerator_peak_gb(),
     }
+
+
+def _accelerator_peak_gb() -> float | None:
+    """Peak memory the run held on the accelerator (GPU), ``None`` on the CPU."""
+    import jax
+
+    dev = jax.devices()[0]
+    if dev.platform == "cpu":
+        return None
+    stats = dev.memory_stats() or {}
+    peak = stats.get("peak_bytes_in_use")
+    return None if peak is None else peak / 1024**3
 
 
 def main() -> None:
@@ -106,11 +119,12 @@ def main() -> None:
         "| peak RSS [GB] | geodesic AUC |"
     )
     print("|---|---|---|---|---|---|---|")
+    gpu = lambda r: "" if r.get("accelerator_peak_gb") is None else f" (GPU {r['accelerator_peak_gb']:.2f})"
     for r in rows:
         print(
             f"| {r['n_source']} / {r['n_target']} | {r['n_working']} | {r['wall_seconds']:.0f} | "
             f"{r['setup']:.0f} / {r['train']:.0f} / {r['outputs']:.0f} | {r['per_step']:.3f} | "
-            f"{r['peak_rss_gb']:.2f} | {r['geodesic_auc']:.3f} |"
+            f"{r['peak_rss_gb']:.2f}{gpu(r)} | {r['geodesic_auc']:.3f} |"
         )
     if args.json:
         with open(args.json, "w") as fh:

@@ -10,6 +10,7 @@ of float32 behaviour pass float32 arrays.
 """
 
 import os
+import re
 
 if os.environ.get("NCFLOW_TYPECHECK", "1") != "0":
     from jaxtyping import install_import_hook
@@ -47,3 +48,11 @@ def _free_compiled_executables():
     """
     yield
     jax.clear_caches()
+
+
+@pytest.fixture
+def dot_precisions():
+    """A function: the ``precision`` of every matrix product in a printed jaxpr (scan bodies and
+    custom VJPs included), e.g. ``["(Precision.HIGHEST, Precision.HIGHEST)", "None"]``.
+    """
+    return lambda jaxpr_text: re.findall(r"dot_general\[.*?precision=(\([^)]*\)|None)", jaxpr_text, flags=re.S)

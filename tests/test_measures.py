@@ -18,6 +18,7 @@ from ncflow.measures import (
     varifold_distance,
     varifold_inner,
 )
+from ncflow.measures.kernels import kernel_matvec
 from ncflow.synthetic.shapes import bend, capsule, rounded_box, sphere, tube
 
 # ------------------------------------------------------------------------------------------
@@ -123,6 +124,22 @@ def test_kernel_sum_float32_stays_float32():
         * (np.asarray(w, np.float64) @ np.asarray(w, np.float64).T)
     )
     assert float(val) == pytest.approx(ref, rel=1e-5)
+
+
+def test_kernel_products_ask_for_full_float32_precision(dot_precisions):
+    # GPUs run float32 products in TF32 unless told otherwise; the expanded distance then loses the
+    # kernel (an H100 gave a zero compressed self-energy). On the CPU the flag is a no-op, so the
+    # lowering itself is what can be checked here.
+    x = jnp.ones((6, 3), jnp.float32)
+    u = jnp.ones((6, 2), jnp.float32)
+    texts = [
+        str(jax.make_jaxpr(jax.value_and_grad(lambda x, u: kernel_sum(x, u, 2 * x, u), argnums=(0, 1)))(x, u)),
+        str(jax.make_jaxpr(jax.value_and_grad(lambda x, u: kernel_self_sum(x, u), argnums=(0, 1)))(x, u)),
+        str(jax.make_jaxpr(lambda x, u: kernel_matvec(x, 2 * x, u))(x, u)),
+    ]
+    for text in texts:
+        found = dot_precisions(text)
+        assert found and all(p == "(Precision.HIGHEST, Precision.HIGHEST)" for p in found), found
 
 
 @pytest.mark.parametrize("shape", ["closed", "open"])

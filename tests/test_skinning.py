@@ -159,3 +159,17 @@ def test_swing_pose_removes_the_twist_of_single_child_joints_only():
     x = jnp.asarray(np.random.default_rng(5).normal(scale=0.3, size=(20, 3)) + [0, 0, 0.5])
     grad = jax.grad(lambda p: jnp.sum(SkinnedField(_residual(), skel, p, dtype=jnp.float64)(x, 0.5) ** 2))(pose)
     assert abs(float(grad.rotations[0, 3])) < 1e-12 and abs(float(grad.rotations[0, 1])) > 1e-6
+
+
+def test_skinning_products_ask_for_full_float32_precision(dot_precisions):
+    # the point-to-bone distances are expanded |x|² − 2⟨x, a⟩ + |a|²: in TF32 (a GPU's default for
+    # float32 products) they lose the weights of points near a bone; see measures/kernels.py
+    skel = _skeleton()
+    x = jnp.asarray(np.random.default_rng(2).normal(size=(7, 3)), jnp.float32)
+
+    def speed(pose):
+        return jnp.sum(SkinnedField(_residual(), skel, pose, width=0.05, dtype=jnp.float32)(x, 0.4) ** 2)
+
+    found = dot_precisions(str(jax.make_jaxpr(jax.value_and_grad(speed))(rest_pose(skel, jnp.float32))))
+    skinning = [p for p in found if p != "None"]
+    assert len(skinning) >= 4 and all(p == "(Precision.HIGHEST, Precision.HIGHEST)" for p in skinning), found

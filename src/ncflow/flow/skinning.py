@@ -36,6 +36,12 @@ from ncflow.skeleton import Skeleton
 from ncflow.skeleton.dualquat import dq_rotation, dq_translation, quat_to_matrix
 from ncflow.skeleton.kinematics import Pose, bone_motions, rest_pose
 
+_HIGHEST = jax.lax.Precision.HIGHEST  # full float32 products on GPUs too (not TF32): see measures/kernels.py
+
+
+def _mm(a: Array, b: Array) -> Array:
+    return jnp.matmul(a, b, precision=_HIGHEST)
+
 
 def bone_velocities(
     skeleton: Skeleton, pose: Pose, t: Float[ArrayLike, ""], interp: str = "sclerp", h: float = 1e-3
@@ -72,8 +78,8 @@ def _segment_distance(x: Float[Array, "N 3"], a: Float[Array, "B 3"], b: Float[A
     # (N, B) arrays only: the point-bone products come from two matrix products
     ab = b - a
     ab2 = jnp.maximum(jnp.sum(ab * ab, -1), 1e-12)
-    ap_ab = x @ ab.T - jnp.sum(a * ab, -1)  # (x − a)·(b − a)
-    ap2 = jnp.sum(x * x, -1)[:, None] - 2.0 * (x @ a.T) + jnp.sum(a * a, -1)  # |x − a|²
+    ap_ab = _mm(x, ab.T) - jnp.sum(a * ab, -1)  # (x − a)·(b − a)
+    ap2 = jnp.sum(x * x, -1)[:, None] - 2.0 * _mm(x, a.T) + jnp.sum(a * a, -1)  # |x − a|²
     u = jnp.clip(ap_ab / ab2, 0.0, 1.0)
     d2 = ap2 - 2.0 * u * ap_ab + u * u * ab2
     return jnp.sqrt(jnp.maximum(d2, 0.0) + 1e-12)
@@ -135,9 +141,9 @@ class SkinnedField(eqx.Module):
         r, c, dr, dc = bone_velocities(self.skeleton, self.swing_pose(), t, self.interp)
         bones = np.asarray(self.skeleton.bones)
         rest = jnp.asarray(self.skeleton.positions, r.dtype)
-        heads = jnp.einsum("bij,bj->bi", r, rest[bones[:, 0]]) + c
-        tails = jnp.einsum("bij,bj->bi", r, rest[bones[:, 1]]) + c
-        return heads, tails, c, jnp.einsum("bij,bkj->bik", dr, r), dc  # Ω = Ṙ Rᵀ
+        heads = jnp.einsum("bij,bj->bi", r, rest[bones[:, 0]], precision=_HIGHEST) + c
+        tails = jnp.einsum("bij,bj->bi", r, rest[bones[:, 1]], precision=_HIGHEST) + c
+        return heads, tails, c, jnp.einsum("bij,bkj->bik", dr, r, precision=_HIGHEST), dc  # Ω = Ṙ Rᵀ
 
     def weights(self, x: Float[Array, "N 3"], t: Float[Array, ""] | float) -> Float[Array, "N B"]:
         """Bone weights w_b(x, t) of points x at time t (rows sum to 1)."""
@@ -164,9 +170,9 @@ def _blend(x, motion, width):
     heads, tails, c, omega, dc = motion
     w = skinning_weights(x, heads, tails, width).astype(x.dtype)  # (N, B)
     # Σ_b w_b (Ω_b x + k_b), k_b = ċ_b − Ω_b c_b, as two matrix products
-    k = (dc - jnp.einsum("bij,bj->bi", omega, c)).astype(x.dtype)
+    k = (dc - jnp.einsum("bij,bj->bi", omega, c, precision=_HIGHEST)).astype(x.dtype)
     wx = (w[:, :, None] * x[:, None, :]).reshape(x.shape[0], -1)  # (N, 3B)
-    return wx @ jnp.swapaxes(omega, 1, 2).reshape(-1, 3).astype(x.dtype) + w @ k
+    return _mm(wx, jnp.swapaxes(omega, 1, 2).reshape(-1, 3).astype(x.dtype)) + _mm(w, k)
 
 
 class _GridSkinnedField(eqx.Module):
