@@ -92,7 +92,7 @@ def test_placement_candidates_start_with_the_target_as_given_and_include_the_tru
     axis = np.array([0.3, 0.8, -0.5]) / np.linalg.norm([0.3, 0.8, -0.5])
     turn = Rotation.from_rotvec(np.radians(150.0) * axis)
     moved = t @ turn.as_matrix().T + np.array([0.9, -0.5, 0.4])
-    cands = placement_candidates(s, fs, moved, ft, count=3)
+    cands = placement_candidates(s, fs, moved, ft, count=3, min_relative_score=0.0)
     assert 1 <= len(cands) <= 3
     assert not cands[0].moved
     np.testing.assert_array_equal(cands[0].rotation, np.eye(3))
@@ -106,3 +106,18 @@ def test_placement_candidates_start_with_the_target_as_given_and_include_the_tru
     for i in range(len(rots)):
         for j in range(i):
             assert np.degrees((rots[i] * rots[j].inv()).magnitude()) >= 10.0
+
+
+def test_placement_candidates_leave_out_poor_rigid_fits(pair):
+    """Refined fits scoring below ``min_relative_score`` × the best are not worth a pose search; the
+    target as given is always kept."""
+    from ncflow.match.placement import placement_candidates
+
+    s, fs, t, ft = pair
+    every = placement_candidates(s, fs, t, ft, count=6, min_relative_score=0.0)
+    best = max(c.score for c in every)
+    poor = [c.score for c in every[1:] if c.score < 0.8 * best]
+    assert poor  # a body turned around fits rigidly worse: something to leave out
+    kept = placement_candidates(s, fs, t, ft, count=6)
+    assert not kept[0].moved and np.isclose(kept[0].score, every[0].score)
+    assert [c.score for c in kept[1:]] == [c.score for c in every[1:] if c.score >= 0.8 * best]
