@@ -91,7 +91,8 @@ def test_objective_at_identity_flow_is_the_data_term_plus_nothing(problem):
     total, aux = objective(
         zero_flow,
         rest_pose(arrays.skeleton, DTYPE),
-        target,
+        (target,),
+        0,
         jnp.asarray(st.sigma, DTYPE),
         jnp.asarray(0.5, DTYPE),
         jnp.asarray(yy, DTYPE),
@@ -114,6 +115,47 @@ def test_objective_at_identity_flow_is_the_data_term_plus_nothing(problem):
     assert float(total) == pytest.approx(float(aux["data"]) + cfg.weights.surface * float(aux["surface"]), rel=1e-6)
 
 
+def test_one_step_for_every_metric_picks_the_stage_data_term(problem):
+    """The training compiles one step for the Varifold and the Normal Cycle stages: ``which``
+    selects the data term, and each equals the single-metric objective's (everything else is the same)."""
+    cfg, prob, stages, targets = problem
+    arrays = Arrays.from_problem(prob)
+    firsts = {}
+    for st in stages:
+        firsts.setdefault(st.metric, st)
+    assert set(firsts) == {"varifold", "normal-cycles"}
+    names = tuple(firsts)
+    both = Settings.from_config(cfg, names, int(arrays.edges.shape[0]), 0)
+    params = init_params(jax.random.key(0), cfg, arrays.skeleton)
+    tg = {m: targets[(st.metric, st.sigma, st.phase_config.sigma_normal)] for m, st in firsts.items()}
+
+    def data(settings, which, stage_targets, st):
+        _, aux = objective(
+            params,
+            rest_pose(arrays.skeleton, DTYPE),
+            stage_targets,
+            jnp.asarray(which, jnp.int32),
+            jnp.asarray(st.sigma, DTYPE),
+            jnp.asarray(st.phase_config.sigma_normal, DTYPE),
+            jnp.asarray(tg[st.metric][1], DTYPE),
+            jnp.asarray([1.0, 1.0], DTYPE),
+            jnp.zeros((2, arrays.skeleton.n_bones), DTYPE),
+            jax.random.key(1),
+            arrays=arrays,
+            settings=settings,
+        )
+        return float(aux["data"])
+
+    values = []
+    for i, (m, st) in enumerate(firsts.items()):
+        alone = Settings.from_config(cfg, m, int(arrays.edges.shape[0]), 0)
+        single = data(alone, 0, (tg[m][0],), st)
+        shared = data(both, i, tuple(tg[n][0] for n in names), st)
+        assert shared == pytest.approx(single, rel=1e-5)  # float32 training: only the fusion differs
+        values.append(single)
+    assert abs(values[0] - values[1]) > 1e-3 * abs(values[0])  # two different terms were picked
+
+
 def test_step_runs_the_sign_ascent_of_optim_mdmm(problem):
     cfg, arrays, st, target, yy, s, params = _first_stage(problem)
     lam = jnp.asarray([[0.3, 0.0], [0.1, 0.2]], DTYPE)
@@ -125,7 +167,8 @@ def test_step_runs_the_sign_ascent_of_optim_mdmm(problem):
         rest_pose(arrays.skeleton, DTYPE),
         opt.init(eqx.filter(params, eqx.is_inexact_array)),
         lam,
-        target,
+        (target,),
+        jnp.asarray(0, jnp.int32),
         jnp.asarray(st.sigma, DTYPE),
         jnp.asarray(0.5, DTYPE),
         jnp.asarray(yy, DTYPE),

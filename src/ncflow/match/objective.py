@@ -23,13 +23,12 @@ pose and g_k measures only the flow's departure from an articulated rigid motion
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, PRNGKeyArray
+from jaxtyping import Array, Float, Int, PRNGKeyArray
 
 from ncflow.flow import GSONet, integrate, time_grid
 from ncflow.geometry.topology import Topology
@@ -61,7 +60,7 @@ class Params(eqx.Module):
 class Settings:
     """The numbers of the configuration the objective reads (static under ``jit``)."""
 
-    metric: str
+    metrics: tuple[str, ...]  # the data terms one compiled step chooses among (by a traced index)
     n_bone_samples: int
     n_tissue: int
     n_edges: int
@@ -79,11 +78,13 @@ class Settings:
     tissue_weight: float
 
     @classmethod
-    def from_config(cls, config, metric: str, n_edges_total: int, n_centroids: int) -> Settings:
-        """Settings of ``config`` for one metric; ``sampling.surface_edges`` ≤ 0 means all edges."""
+    def from_config(cls, config, metrics: str | tuple[str, ...], n_edges_total: int, n_centroids: int) -> Settings:
+        """Settings of ``config`` for the data terms ``metrics`` (one name or several: one step
+        compiled for all stages); ``sampling.surface_edges`` ≤ 0 means all edges.
+        """
         c, s = config.constraints, config.sampling
         return cls(
-            metric=metric,
+            metrics=(metrics,) if isinstance(metrics, str) else tuple(metrics),
             n_bone_samples=s.bone_samples,
             n_tissue=min(s.tissue_samples, n_centroids),
             n_edges=s.surface_edges if s.surface_edges > 0 else n_edges_total,
@@ -131,7 +132,8 @@ class Arrays:
 def objective(
     params: Params,
     pose: Pose,
-    target: Any,
+    targets: tuple,
+    which: Int[Array, ""] | int,
     sigma: Float[Array, ""],
     sigma_normal: Float[Array, ""],
     yy: Float[Array, ""],
@@ -147,7 +149,10 @@ def objective(
     Args:
         params: flow field and GSO-Net.
         pose: the pose of the previous step (warm start of the per-step pose fit).
-        target: the (compressed) target measure of this stage.
+        targets: one (compressed) target measure per metric of ``settings.metrics``; only the
+            one of the stage's metric is read.
+        which: index of this stage's metric in ``settings.metrics`` (traced: one compiled step
+            serves the Varifold and the Normal Cycle stages, whose other parts are the same).
         sigma: the kernel scale σ of this stage.
         sigma_normal: the Varifold's normal scale σ_n (unused by Normal Cycles).
         yy: the target's self-energy ⟨Y, Y⟩.
@@ -162,7 +167,6 @@ def objective(
         ``g_tr`` (B,), ``pose`` (the fitted pose) and ``watch`` (2,) = (data term, max_k g_k/ε).
     """
     s = settings
-    metric = get_metric(s.metric)
     kb, kt, ke = jax.random.split(key, 3)
     src, nv = arrays.source, arrays.source.shape[0]
     times = time_grid(s.n_times, DTYPE)
@@ -174,7 +178,7 @@ def objective(
     xs, _ = integrate(params.flow, jnp.concatenate(parts), s.n_times)
     surf = xs[:, :nv]
     flowed_bones = xs[:, nv : nv + nb].reshape(s.n_times, *bones.shape)
-    data = _data_term(metric, surf[-1], arrays, target, sigma, sigma_normal, yy)
+    data = _data_term(s.metrics, which, surf[-1], arrays, targets, sigma, sigma_normal, yy)
     # surface ARAP on random edges, rotations from the GSO-Net at both ends
     e = sample_edges(ke, arrays.edges, s.n_edges)
     rest, local = edge_points(src, e)
@@ -204,11 +208,21 @@ def objective(
     return total, aux
 
 
-def _data_term(metric, deformed, arrays: Arrays, target, sigma, sigma_normal, yy) -> Float[Array, ""]:
-    """‖X(1) − Y‖² / ⟨Y, Y⟩ with ⟨Y, Y⟩ precomputed."""
-    x = metric.represent(deformed, arrays.topology)
-    data = metric.inner(x, x, sigma, sigma_normal) - 2.0 * metric.inner(x, target, sigma, sigma_normal) + yy
-    return data / yy
+def _data_term(metrics, which, deformed, arrays: Arrays, targets, sigma, sigma_normal, yy) -> Float[Array, ""]:
+    """‖X(1) − Y‖² / ⟨Y, Y⟩ in the metric ``metrics[which]``, with ⟨Y, Y⟩ precomputed."""
+
+    def term(name, target):
+        def data(deformed):
+            metric = get_metric(name)
+            x = metric.represent(deformed, arrays.topology)
+            return metric.inner(x, x, sigma, sigma_normal) - 2.0 * metric.inner(x, target, sigma, sigma_normal) + yy
+
+        return data
+
+    branches = [term(name, target) for name, target in zip(metrics, targets, strict=True)]
+    if len(branches) == 1:
+        return branches[0](deformed) / yy
+    return jax.lax.switch(which, branches, deformed) / yy
 
 
 def constraint_term(

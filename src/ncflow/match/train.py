@@ -78,9 +78,9 @@ def build_optimizer(config) -> optax.GradientTransformation:
 
 
 def make_step(arrays: Arrays, settings: Settings, optimizer: optax.GradientTransformation, multiplier_lr: float):
-    """The jitted training step for one metric.
+    """The jitted training step, one for every stage (the stage's metric is the traced ``which``).
 
-    ``step(params, pose, opt_state, lam, target, sigma, sigma_n, yy, cw, lr, progress, key)`` →
+    ``step(params, pose, opt_state, lam, targets, which, sigma, sigma_n, yy, cw, lr, progress, key)`` →
     ``(params, pose, opt_state, lam, aux)``: value and gradient of :func:`~ncflow.match.objective.objective`,
     one optimiser update at learning rate ``lr``, and (MDMM) one multiplier ascent at the rate
     ramped by ``progress`` (step / total steps).
@@ -88,9 +88,9 @@ def make_step(arrays: Arrays, settings: Settings, optimizer: optax.GradientTrans
     loss = functools.partial(objective, arrays=arrays, settings=settings)
 
     @eqx.filter_jit
-    def step(params, pose, opt_state, lam, target, sigma, sigma_n, yy, cw, lr, progress, key):
+    def step(params, pose, opt_state, lam, targets, which, sigma, sigma_n, yy, cw, lr, progress, key):
         (_, aux), grads = eqx.filter_value_and_grad(loss, has_aux=True)(
-            params, pose, target, sigma, sigma_n, yy, cw, lam, key
+            params, pose, targets, which, sigma, sigma_n, yy, cw, lam, key
         )
         opt_state = opt_state._replace(hyperparams={**opt_state.hyperparams, "learning_rate": lr})
         updates, opt_state = optimizer.update(grads, opt_state, eqx.filter(params, eqx.is_inexact_array))
@@ -129,18 +129,20 @@ def train(
     optimizer = build_optimizer(cfg)
     opt_state = optimizer.init(eqx.filter(params, eqx.is_inexact_array))
     lam = jnp.zeros((2, arrays.skeleton.n_bones), DTYPE)
-    steps_fn = {}
+    metrics = tuple(dict.fromkeys(st.metric for st in stages))
+    settings = Settings.from_config(cfg, metrics, int(arrays.edges.shape[0]), n_centroids)
+    step = make_step(arrays, settings, optimizer, cfg.constraints.multiplier_lr)
+    # the other metrics' slots hold a target of the same shape (compression makes one per σ): unread
+    placeholders = {st.metric: targets[(st.metric, st.sigma, st.phase_config.sigma_normal)][0] for st in stages}
     history = []
     done = 0
     aux = None
     cw = None
     guard = DivergenceGuard(cfg.divergence_guard)
     for st in stages:
-        if st.metric not in steps_fn:
-            settings = Settings.from_config(cfg, st.metric, int(arrays.edges.shape[0]), n_centroids)
-            steps_fn[st.metric] = make_step(arrays, settings, optimizer, cfg.constraints.multiplier_lr)
-        step = steps_fn[st.metric]
         target, yy, _ = targets[(st.metric, st.sigma, st.phase_config.sigma_normal)]
+        stage_targets = tuple(target if m == st.metric else placeholders[m] for m in metrics)
+        which = jnp.asarray(metrics.index(st.metric), jnp.int32)
         schedule = phase_schedule(st.phase_config)
         pw = st.phase_config.constraint_weight
         cw = jnp.asarray([pw, pw if st.phase_config.trajectory else 0.0], DTYPE)
@@ -153,7 +155,8 @@ def train(
                 pose,
                 opt_state,
                 lam,
-                target,
+                stage_targets,
+                which,
                 jnp.asarray(st.sigma, DTYPE),
                 jnp.asarray(st.phase_config.sigma_normal, DTYPE),
                 jnp.asarray(yy, DTYPE),
