@@ -23,6 +23,7 @@ pose and g_k measures only the flow's departure from an articulated rigid motion
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import equinox as eqx
 import jax
@@ -209,19 +210,16 @@ def objective(
 
 
 def _data_term(metrics, which, deformed, arrays: Arrays, targets, sigma, sigma_normal, yy) -> Float[Array, ""]:
-    """‖X(1) − Y‖² / ⟨Y, Y⟩ in the metric ``metrics[which]``, with ⟨Y, Y⟩ precomputed."""
+    """‖X(1) − Y‖² / ⟨Y, Y⟩ in the metric ``metrics[which]``, with ⟨Y, Y⟩ precomputed (``lax.switch``
+    calls a single metric's term directly).
+    """
 
-    def term(name, target):
-        def data(deformed):
-            metric = get_metric(name)
-            x = metric.represent(deformed, arrays.topology)
-            return metric.inner(x, x, sigma, sigma_normal) - 2.0 * metric.inner(x, target, sigma, sigma_normal) + yy
+    def term(name, target, deformed):
+        metric = get_metric(name)
+        x = metric.represent(deformed, arrays.topology)
+        return metric.inner(x, x, sigma, sigma_normal) - 2.0 * metric.inner(x, target, sigma, sigma_normal) + yy
 
-        return data
-
-    branches = [term(name, target) for name, target in zip(metrics, targets, strict=True)]
-    if len(branches) == 1:
-        return branches[0](deformed) / yy
+    branches = [functools.partial(term, name, target) for name, target in zip(metrics, targets, strict=True)]
     return jax.lax.switch(which, branches, deformed) / yy
 
 
