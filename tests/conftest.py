@@ -24,13 +24,24 @@ import jax  # noqa: E402
 jax.config.update("jax_enable_x64", True)
 
 
+import atexit  # noqa: E402
+import shutil  # noqa: E402
 import tempfile  # noqa: E402
 
+
+def _session_dir(prefix: str) -> str:
+    """A fresh temporary folder, removed when the test process exits."""
+    path = tempfile.mkdtemp(prefix=prefix)
+    atexit.register(shutil.rmtree, path, ignore_errors=True)
+    return path
+
+
 # keep the tetrahedralisation cache of test runs out of the user's home
-os.environ.setdefault("NCFLOW_CACHE_DIR", tempfile.mkdtemp(prefix="ncflow-test-cache-"))
+if "NCFLOW_CACHE_DIR" not in os.environ:
+    os.environ["NCFLOW_CACHE_DIR"] = _session_dir("ncflow-test-cache-")
 
 # identical training steps compiled by several matcher runs in one session are reused
-jax.config.update("jax_compilation_cache_dir", tempfile.mkdtemp(prefix="ncflow-test-jit-"))
+jax.config.update("jax_compilation_cache_dir", _session_dir("ncflow-test-jit-"))
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 

@@ -226,7 +226,7 @@ def _fast() -> Config:
     return Config(
         preset="fast",
         phases=(
-            PhaseConfig(name="varifold", metric="varifold", steps=150, sigmas=(0.5, 0.25), lr=3e-3, warmup=10),
+            PhaseConfig(name="varifold", metric="varifold", steps=150, sigmas=(0.25,), lr=3e-3, warmup=10),
             PhaseConfig(
                 name="normal-cycles",
                 metric="normal-cycles",
