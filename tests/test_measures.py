@@ -113,6 +113,17 @@ def test_kernel_sum_matches_dense_and_gradients(block):
         np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-12)
 
 
+@pytest.mark.parametrize("block", [7, 13, 512, 2048])
+def test_kernel_tiles_are_the_fewest_and_waste_under_eight_rows_each(block):
+    from ncflow.measures.kernels import _blocks
+
+    for n in range(1, 4 * block + 50):
+        size = _blocks(n, block)
+        tiles = -(-n // size)
+        assert size <= block and tiles == -(-n // block)
+        assert 0 <= tiles * size - n < 8 * tiles
+
+
 def test_kernel_sum_float32_stays_float32():
     rng = np.random.default_rng(1)
     x = jnp.asarray(rng.normal(size=(50, 3)), jnp.float32)
