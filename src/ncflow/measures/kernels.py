@@ -39,7 +39,8 @@ def _pad_rows(a: Array, multiple: int) -> Array:
 def _blocks(n: int, block: int) -> int:
     """Tile size for n rows at most ``block`` each: the fewest tiles, of equal size (a multiple of 8
     where ``block`` allows), so that padding wastes less than 8 rows per tile — 600 rows in tiles of
-    at most 512 are two of 304, not two of 512 (a 1.7× longer sum)."""
+    at most 512 are two of 304, not two of 512 (a 1.7× longer sum).
+    """
     if n <= block:
         return max(1, n)
     count = -(-n // block)
