@@ -20,12 +20,13 @@ import jax
 from ncflow.cache import configure_compilation_cache
 from ncflow.config import Config, preset, validate_config
 from ncflow.match.objective import Arrays
-from ncflow.match.prepare import prepare
+from ncflow.match.prepare import DTYPE, prepare
 from ncflow.match.progress import Progress
-from ncflow.match.result import MatchResult, build_result
+from ncflow.match.result import MatchResult, OutputPrograms, build_result, frame_times
 from ncflow.match.stages import build_stages
 from ncflow.match.targets import target_measures
-from ncflow.match.train import TrainingError, train
+from ncflow.match.train import TrainingError, init_params, train
+from ncflow.skeleton.kinematics import rest_pose
 
 __all__ = ["Matcher", "MatchResult", "TrainingError", "match"]
 
@@ -68,6 +69,14 @@ class Matcher:
         k_init, k_train, k_eval = jax.random.split(jax.random.key(cfg.seed), 3)
         search = self.problem.pose_search
         initial_pose = None if search is None else search.pose
+        programs = OutputPrograms(self.arrays, cfg)
+        programs.compile_in_background(
+            init_params(k_init, cfg, self.arrays.skeleton, initial_pose),
+            rest_pose(self.arrays.skeleton, DTYPE) if initial_pose is None else initial_pose,
+            k_eval,
+            self.problem.source_vertices,
+            frame_times(cfg),
+        )
         params, pose, lam, cw, history, done, rollbacks = train(
             self.arrays,
             self.targets,
@@ -81,7 +90,7 @@ class Matcher:
         train_seconds = time.perf_counter() - t_train
         t_out = time.perf_counter()
         result = build_result(
-            self.problem, self.arrays, self.targets, cfg, params, pose, lam, cw, history, k_eval, self.timings
+            self.problem, self.arrays, self.targets, cfg, params, pose, lam, cw, history, k_eval, self.timings, programs
         )
         timings = result.metrics["timings"]
         timings.update(train=train_seconds, per_step=train_seconds / max(done, 1), outputs=time.perf_counter() - t_out)

@@ -111,34 +111,84 @@ class MatchResult:
 FINAL_BONE_SAMPLES = 200  # per bone, for the reported g_k (fresh samples, so an estimate of the integral)
 
 
-def final_pose(arrays, config, params, pose: Pose, lam, cw, key) -> tuple[Pose, np.ndarray, np.ndarray]:
+class OutputPrograms:
+    """The output phase's compiled programs for one run, compiled while the flow trains (issue 17).
+
+    The output pose refit alone compiles for seconds (a Gauss–Newton Jacobian through the whole
+    kinematic chain); nothing it computes depends on training except the values it is given. So
+    :meth:`compile_in_background` calls every program once on the untrained parameters (the same
+    shapes and structure as the trained ones) on a worker thread — XLA compiles on the core the
+    training step leaves idle, or loads from the persistent cache — and :func:`build_result`
+    calls the already compiled programs (:meth:`wait` first).
+
+    Programs: ``final`` (:func:`final_pose`'s refit: (field, pose, λ, c_w, key) → (pose, g^EP, g^TR)),
+    ``frames`` (the full source flowed to the frame times) and ``joints`` (the skeleton per frame).
+    """
+
+    def __init__(self, arrays, config):
+        c = config.constraints
+        n_times, skeleton, radii, interp = config.flow.n_times, arrays.skeleton, arrays.radii, config.interp
+        self.n_times, self._future = n_times, None
+
+        @eqx.filter_jit
+        def final(field, pose, lam, cw, key):
+            bones = sample_bones(skeleton, key, FINAL_BONE_SAMPLES, radius=radii, dtype=DTYPE).points
+            xs = flow_points(field, bones.reshape(-1, 3), n_times).reshape(n_times, *bones.shape)
+            times = time_grid(n_times, DTYPE)
+            lam_ep, lam_tr = lam[0] * cw[0], lam[1] * cw[1]
+            fw = constraint_fit_weights(n_times, bones.shape[0], DTYPE, lam_ep, lam_tr, c.trajectory_weight)
+            pose = fit_pose(skeleton, pose, bones, xs, times, interp, iterations=3, weights=fw)
+            ref = rigid_reference(skeleton, pose, bones, times, interp)
+            g_ep, g_tr = bone_constraints(xs, ref)
+            return pose, g_ep, g_tr
+
+        self.final = final
+        self.joints = jax.jit(jax.vmap(lambda p, t: interpolate_joints(skeleton, p, t, interp), in_axes=(None, 0)))
+
+    def frames(self, field, source: np.ndarray, times: np.ndarray):
+        """(K, V, 3) the points ``source`` (V, 3) flowed to ``times`` (K,)."""
+        return flow_points(field, jnp.asarray(source, DTYPE), self.n_times, times=jnp.asarray(times, DTYPE))
+
+    def compile_in_background(self, params, pose: Pose, key, source: np.ndarray, times: np.ndarray) -> None:
+        """Compile (run once on) ``params`` — any parameters shaped as the trained ones — on a worker
+        thread; a failure there is left for the real call to report.
+        """
+        from concurrent.futures import ThreadPoolExecutor
+
+        lam = jnp.zeros((2, pose.rotations.shape[0] - 1), DTYPE)
+        cw = jnp.ones((2,), DTYPE)
+
+        def run():
+            outputs = (
+                self.final(params.flow, pose, lam, cw, key),
+                self.frames(params.flow, source, times),
+                self.joints(pose, jnp.asarray(times, DTYPE)),
+            )
+            jax.block_until_ready(outputs)
+
+        pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ncflow-outputs")
+        self._future = pool.submit(run)
+        pool.shutdown(wait=False)
+
+    def wait(self) -> None:
+        """Wait for :meth:`compile_in_background` (its errors are the real calls' to raise)."""
+        if self._future is not None:
+            self._future.exception()
+            self._future = None
+
+
+def final_pose(programs: OutputPrograms, params, pose: Pose, lam, cw, key) -> tuple[Pose, np.ndarray, np.ndarray]:
     """The output pose and its (g^EP, g^TR): the training pose refined on FINAL_BONE_SAMPLES fresh
     samples per bone with the final multiplier weights (the per-step fit sees only a few samples).
     One compiled program (run op by op it dispatched ~250 small executables: 20 s on a hand).
     """
-    c = config.constraints
-    n_times = config.flow.n_times
-    skeleton, radii, interp = arrays.skeleton, arrays.radii, config.interp
-
-    @eqx.filter_jit
-    def run(field, pose, lam, cw, key):
-        bones = sample_bones(skeleton, key, FINAL_BONE_SAMPLES, radius=radii, dtype=DTYPE).points
-        xs = flow_points(field, bones.reshape(-1, 3), n_times).reshape(n_times, *bones.shape)
-        times = time_grid(n_times, DTYPE)
-        fw = constraint_fit_weights(n_times, bones.shape[0], DTYPE, lam[0] * cw[0], lam[1] * cw[1], c.trajectory_weight)
-        pose = fit_pose(skeleton, pose, bones, xs, times, interp, iterations=3, weights=fw)
-        ref = rigid_reference(skeleton, pose, bones, times, interp)
-        g_ep, g_tr = bone_constraints(xs, ref)
-        return pose, g_ep, g_tr
-
-    pose, g_ep, g_tr = run(params.flow, pose, lam, cw, key)
+    pose, g_ep, g_tr = programs.final(params.flow, pose, lam, cw, key)
     return pose, np.asarray(g_ep, np.float64), np.asarray(g_tr, np.float64)
 
 
-def joint_frames(skeleton: Skeleton, pose: Pose, times: np.ndarray, interp: str) -> np.ndarray:
-    """(K, J, 3) joint positions at ``times`` (K,) between rest and ``pose``, in one compiled call."""
-    run = jax.jit(jax.vmap(lambda p, t: interpolate_joints(skeleton, p, t, interp), in_axes=(None, 0)))
-    return np.asarray(run(pose, jnp.asarray(times, pose.rotations.dtype)), np.float64)
+def frame_times(config) -> np.ndarray:
+    """(K,) the output frames' times: ``config.frames`` uniform in [0, 1]."""
+    return np.linspace(0.0, 1.0, config.frames)
 
 
 def _versions() -> dict:
@@ -157,8 +207,12 @@ def _versions() -> dict:
     }
 
 
-def build_result(problem, arrays, targets, config, params, pose: Pose, lam, cw, history, key, timings) -> MatchResult:
+def build_result(
+    problem, arrays, targets, config, params, pose: Pose, lam, cw, history, key, timings, programs=None
+) -> MatchResult:
     """Flow the full source, refit the pose, interpolate the skeleton, project the target; metrics.
+
+    ``programs``: the run's :class:`OutputPrograms` (compiled during training); default new ones.
 
     Raises:
         TrainingError: the trained flow produced non-finite positions.
@@ -167,21 +221,21 @@ def build_result(problem, arrays, targets, config, params, pose: Pose, lam, cw, 
     norm = problem.normalization
     source, target, skeleton = problem.source, problem.target, problem.skeleton
     src_v = problem.source_vertices
-    frame_times = np.linspace(0.0, 1.0, cfg.frames)
-    src = jnp.asarray(src_v, DTYPE)
-    frames_n = np.asarray(
-        flow_points(params.flow, src, cfg.flow.n_times, times=jnp.asarray(frame_times, DTYPE)), np.float64
-    )
+    times = frame_times(cfg)
+    if programs is None:
+        programs = OutputPrograms(arrays, cfg)
+    programs.wait()
+    frames_n = np.asarray(programs.frames(params.flow, src_v, times), np.float64)
     frames_n[0] = src_v  # t = 0 is the source exactly
     deformed_n = frames_n[-1]  # Hermite output at a grid time is the grid state: the state at t = 1
     if not (np.all(np.isfinite(frames_n)) and np.all(np.isfinite(deformed_n))):
         raise TrainingError("the trained flow produced non-finite positions")
-    pose, g_ep, g_tr = final_pose(arrays, cfg, params, pose, lam, cw, key)
-    joints = joint_frames(arrays.skeleton, pose, frame_times, cfg.interp)
+    pose, g_ep, g_tr = final_pose(programs, params, pose, lam, cw, key)
+    joints = np.asarray(programs.joints(pose, jnp.asarray(times, pose.rotations.dtype)), np.float64)
     maps = correspondence_maps(src_v, source.faces, deformed_n, problem.target_vertices, target.faces)
     pivot = src_v.mean(axis=0)
-    frames_n = move_back(problem.placement, frames_n, frame_times, pivot)
-    joints = move_back(problem.placement, joints, frame_times, pivot)
+    frames_n = move_back(problem.placement, frames_n, times, pivot)
+    joints = move_back(problem.placement, joints, times, pivot)
     deformed_n = frames_n[-1]
     eps = cfg.constraints.eps
     names = skeleton.names or tuple(f"joint {j}" for j in range(skeleton.n_joints))
@@ -237,7 +291,7 @@ def build_result(problem, arrays, targets, config, params, pose: Pose, lam, cw, 
         skeleton=skeleton,
         skeleton_target=skeleton.with_positions(norm.invert(joints[-1])),
         deformed_source=norm.invert(deformed_n),
-        frame_times=frame_times,
+        frame_times=times,
         frames=norm.invert(frames_n),
         skeleton_frames=norm.invert(joints),
         maps=maps,
