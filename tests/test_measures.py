@@ -93,7 +93,7 @@ def perturbed(v, seed, amount=0.05):
 # ------------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("block", [(7, 13), (512, 2048)])
+@pytest.mark.parametrize("block", [(7, 13), (32, 20), (512, 2048)])
 def test_kernel_sum_matches_dense_and_gradients(block):
     rng = np.random.default_rng(0)
     x, u = rng.normal(size=(37, 3)), rng.normal(size=(37, 5))

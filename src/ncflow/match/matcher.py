@@ -20,13 +20,12 @@ import jax
 from ncflow.cache import configure_compilation_cache
 from ncflow.config import Config, preset, validate_config
 from ncflow.match.objective import Arrays
-from ncflow.match.prepare import DTYPE, prepare
+from ncflow.match.prepare import prepare
 from ncflow.match.progress import Progress
 from ncflow.match.result import MatchResult, OutputPrograms, build_result, frame_times
 from ncflow.match.stages import build_stages
 from ncflow.match.targets import target_measures
-from ncflow.match.train import TrainingError, init_params, train
-from ncflow.skeleton.kinematics import rest_pose
+from ncflow.match.train import TrainingError, initial_state, train
 
 __all__ = ["Matcher", "MatchResult", "TrainingError", "match"]
 
@@ -71,22 +70,25 @@ class Matcher:
         initial_pose = None if search is None else search.pose
         programs = OutputPrograms(self.arrays, cfg)
         programs.compile_in_background(
-            init_params(k_init, cfg, self.arrays.skeleton, initial_pose),
-            rest_pose(self.arrays.skeleton, DTYPE) if initial_pose is None else initial_pose,
+            *initial_state(k_init, cfg, self.arrays.skeleton, initial_pose),
             k_eval,
             self.problem.source_vertices,
             frame_times(cfg),
         )
-        params, pose, lam, cw, history, done, rollbacks = train(
-            self.arrays,
-            self.targets,
-            self.stages,
-            cfg,
-            (k_init, k_train),
-            self.progress,
-            int(self.problem.centroids.shape[0]),
-            initial_pose,
-        )
+        try:
+            params, pose, lam, cw, history, done, rollbacks = train(
+                self.arrays,
+                self.targets,
+                self.stages,
+                cfg,
+                (k_init, k_train),
+                self.progress,
+                int(self.problem.centroids.shape[0]),
+                initial_pose,
+            )
+        except BaseException:
+            programs.wait()  # no compilation left running behind a failed run
+            raise
         train_seconds = time.perf_counter() - t_train
         t_out = time.perf_counter()
         result = build_result(

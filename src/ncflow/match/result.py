@@ -10,6 +10,7 @@ writes the output contract (:meth:`MatchResult.save`).
 from __future__ import annotations
 
 import dataclasses
+import logging
 import os
 import platform
 from pathlib import Path
@@ -116,19 +117,23 @@ class OutputPrograms:
 
     The output pose refit alone compiles for seconds (a Gauss–Newton Jacobian through the whole
     kinematic chain); nothing it computes depends on training except the values it is given. So
-    :meth:`compile_in_background` calls every program once on the untrained parameters (the same
-    shapes and structure as the trained ones) on a worker thread — XLA compiles on the core the
-    training step leaves idle, or loads from the persistent cache — and :func:`build_result`
-    calls the already compiled programs (:meth:`wait` first).
+    :meth:`compile_in_background` lowers and compiles every program ahead of time (nothing is
+    run) for the untrained parameters — the same shapes and structure as the trained ones — on a
+    worker thread, and :func:`build_result` calls the already compiled programs (:meth:`wait`
+    first). Measured on a 2-core CPU the compilation only moves into the training phase (the
+    training step already keeps both cores busy); it saves time where a core or the CPU is idle
+    while training runs (a GPU run, more cores). The worker does not inherit thread-local JAX
+    settings (``jax.default_device``): under such settings the real call compiles again.
 
     Programs: ``final`` (:func:`final_pose`'s refit: (field, pose, λ, c_w, key) → (pose, g^EP, g^TR)),
-    ``frames`` (the full source flowed to the frame times) and ``joints`` (the skeleton per frame).
+    ``frames`` ((field, (V, 3) points, (K,) times) → (K, V, 3)) and ``joints`` ((pose, (K,) times) →
+    (K, J, 3) the skeleton per frame).
     """
 
     def __init__(self, arrays, config):
         c = config.constraints
         n_times, skeleton, radii, interp = config.flow.n_times, arrays.skeleton, arrays.radii, config.interp
-        self.n_times, self._future = n_times, None
+        self.n_bones, self._future = skeleton.n_bones, None
 
         @eqx.filter_jit
         def final(field, pose, lam, cw, key):
@@ -142,38 +147,44 @@ class OutputPrograms:
             g_ep, g_tr = bone_constraints(xs, ref)
             return pose, g_ep, g_tr
 
-        self.final = final
-        self.joints = jax.jit(jax.vmap(lambda p, t: interpolate_joints(skeleton, p, t, interp), in_axes=(None, 0)))
+        @eqx.filter_jit
+        def frames(field, points, times):
+            return flow_points(field, points, n_times, times=times)
 
-    def frames(self, field, source: np.ndarray, times: np.ndarray):
-        """(K, V, 3) the points ``source`` (V, 3) flowed to ``times`` (K,)."""
-        return flow_points(field, jnp.asarray(source, DTYPE), self.n_times, times=jnp.asarray(times, DTYPE))
+        @jax.jit
+        def joints(pose, times):
+            return jax.vmap(lambda t: interpolate_joints(skeleton, pose, t, interp))(times)
+
+        self.final, self.frames, self.joints = final, frames, joints
 
     def compile_in_background(self, params, pose: Pose, key, source: np.ndarray, times: np.ndarray) -> None:
-        """Compile (run once on) ``params`` — any parameters shaped as the trained ones — on a worker
-        thread; a failure there is left for the real call to report.
+        """Compile the programs for ``params``, ``pose`` — any shaped as the trained ones — the
+        ``source`` points and frame ``times`` on a worker thread; a failure there is left for the
+        real call to report.
         """
         from concurrent.futures import ThreadPoolExecutor
 
-        lam = jnp.zeros((2, pose.rotations.shape[0] - 1), DTYPE)
+        lam = jnp.zeros((2, self.n_bones), DTYPE)
         cw = jnp.ones((2,), DTYPE)
+        points, at = jnp.asarray(source, DTYPE), jnp.asarray(times, DTYPE)
 
-        def run():
-            outputs = (
-                self.final(params.flow, pose, lam, cw, key),
-                self.frames(params.flow, source, times),
-                self.joints(pose, jnp.asarray(times, DTYPE)),
-            )
-            jax.block_until_ready(outputs)
+        def compile_all():
+            self.final.lower(params.flow, pose, lam, cw, key).compile()
+            self.frames.lower(params.flow, points, at).compile()
+            self.joints.lower(pose, at).compile()
 
         pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ncflow-outputs")
-        self._future = pool.submit(run)
+        self._future = pool.submit(compile_all)
         pool.shutdown(wait=False)
 
     def wait(self) -> None:
-        """Wait for :meth:`compile_in_background` (its errors are the real calls' to raise)."""
+        """Wait for :meth:`compile_in_background`; its failure is logged (the real call compiles and
+        reports it).
+        """
         if self._future is not None:
-            self._future.exception()
+            error = self._future.exception()
+            if error is not None:
+                logging.getLogger(__name__).debug("output programs: compiling ahead failed: %r", error)
             self._future = None
 
 
@@ -225,13 +236,14 @@ def build_result(
     if programs is None:
         programs = OutputPrograms(arrays, cfg)
     programs.wait()
-    frames_n = np.asarray(programs.frames(params.flow, src_v, times), np.float64)
+    at = jnp.asarray(times, DTYPE)
+    frames_n = np.asarray(programs.frames(params.flow, jnp.asarray(src_v, DTYPE), at), np.float64)
     frames_n[0] = src_v  # t = 0 is the source exactly
     deformed_n = frames_n[-1]  # Hermite output at a grid time is the grid state: the state at t = 1
     if not (np.all(np.isfinite(frames_n)) and np.all(np.isfinite(deformed_n))):
         raise TrainingError("the trained flow produced non-finite positions")
     pose, g_ep, g_tr = final_pose(programs, params, pose, lam, cw, key)
-    joints = np.asarray(programs.joints(pose, jnp.asarray(times, pose.rotations.dtype)), np.float64)
+    joints = np.asarray(programs.joints(pose, at), np.float64)
     maps = correspondence_maps(src_v, source.faces, deformed_n, problem.target_vertices, target.faces)
     pivot = src_v.mean(axis=0)
     frames_n = move_back(problem.placement, frames_n, times, pivot)
