@@ -69,3 +69,41 @@ def test_settle_steps_are_ignored_and_factor_zero_disables():
     off = DivergenceGuard(0.0)
     off.start_stage(None)
     assert set(_feed(off, [1.0, 100.0, 1e6])) == {"ok"}
+
+
+def test_a_slow_tear_in_the_last_stage_hands_back_the_latest_untorn_stage_end():
+    g = DivergenceGuard(2.0, every=5, smooth=1.0, settle=2, min_violation=20.0)
+    stages = {
+        "varifold": [0.5] * 10 + [2.0] * 5,  # ends at 2: the least violated end
+        "nc 0.25": [6.0] * 10 + [5.0] * 5,  # ends at 5 (within 10x of 2): the latest untorn end
+        "nc 0.1": [30.0 + 20.0 * i for i in range(15)],  # best 70 after settling: 310 is within 10x of it
+    }
+    for name, violations in stages.items():
+        g.start_stage(("start", name), watch_violation=name != "varifold")
+        assert [g.observe(1.0, ("in", name), i, v) for i, v in enumerate(violations)] == ["ok"] * 15
+        g.end_stage(("end", name), name)
+    assert g.finish(("end", "nc 0.1"), 45) == ("end", "nc 0.25")
+    restored = {"step": 45, "restored_stage_end": "nc 0.25", "violation_smoothed": 310.0, "violation_best": 5.0}
+    assert g.events == [restored]
+    # an end torn itself is passed over for an earlier one
+    g = DivergenceGuard(2.0, smooth=1.0, settle=0, min_violation=20.0)
+    for name, v in (("a", 2.0), ("b", 25.0), ("c", 300.0)):
+        g.start_stage(None)
+        g.observe(1.0, None, 1, v)
+        g.end_stage(("end", name), name)
+    assert g.finish(("end", "c"), 3) == ("end", "a")
+
+
+def test_finish_keeps_the_last_state_unless_it_tore():
+    def run(last_violation, factor=2.0):
+        g = DivergenceGuard(factor, smooth=1.0, settle=0, min_violation=20.0)
+        for name, v in (("a", 3.0), ("b", last_violation)):
+            g.start_stage(None)
+            g.observe(1.0, None, 1, v)
+            g.end_stage(("end", name), name)
+        return g.finish(("end", "b"), 2), g.events
+
+    assert run(29.0) == (("end", "b"), [])  # below 5·2·3 = 30
+    assert run(31.0)[0] == ("end", "a")
+    assert run(15.0)[0] == ("end", "b")  # ten times worse would be 30; and below the 20 floor anyway
+    assert run(1e3, factor=0.0) == (("end", "b"), [])  # the guard off

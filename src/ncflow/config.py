@@ -184,8 +184,9 @@ class Config:
     ``divergence_guard`` (> 1, or 0 to disable): when the smoothed data term of a stage rises
     above this multiple of its best value in that stage (or, from the second stage on, the
     largest bone violation above 5× this multiple of its best and above 20 ε), the run is rolled
-    back to its last healthy snapshot and continues with half the learning rate
-    (``matcher.DivergenceGuard``).
+    back to its last healthy snapshot and continues with half the learning rate; a run whose
+    last stage ends with the violation above 5× this multiple of an earlier stage end's keeps
+    that earlier end (``match.guard.DivergenceGuard``).
     ``placement`` (``auto`` | ``none``): move the target rigidly onto the source before matching
     (any rotation; :mod:`ncflow.match.placement`), outputs moved back; ``none`` trusts the input
     placement. ``pose_search``: search the skeleton pose that best explains the target before the

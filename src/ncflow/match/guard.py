@@ -21,7 +21,11 @@ class DivergenceGuard:
     ``every`` steps. On a runaway :meth:`observe` answers ``"rollback"``: the caller restores
     :attr:`snapshot` and multiplies its learning rate by :attr:`lr_scale` (halved at each
     roll-back); after ``max_trips`` roll-backs in one stage it answers ``"stop"`` (restore and
-    end the stage). ``factor`` = 0 disables it (always ``"ok"``).
+    end the stage). A bone can also tear slowly, within the tolerance of a stage whose best was
+    already poor: :meth:`end_stage` keeps the state each stage ended in, and when the run's last
+    violation exceeds 5·``factor`` times the least violated earlier end (and ``min_violation``),
+    :meth:`finish` hands back the latest earlier end within that bound (the most trained untorn
+    state). ``factor`` = 0 disables it (always ``"ok"``).
     """
 
     def __init__(
@@ -37,6 +41,7 @@ class DivergenceGuard:
         self.max_trips, self.min_violation = max_trips, min_violation
         self.lr_scale = 1.0
         self.events: list[dict] = []
+        self.ends: list[tuple[float, object, str]] = []
         self.start_stage(None)
 
     def start_stage(self, state, watch_violation: bool = True) -> None:
@@ -79,3 +84,23 @@ class DivergenceGuard:
         if self.seen % self.every == 0 and np.all(self.ema <= 1.2 * self.best):
             self.snapshot, self.snapshot_ema = state, self.ema
         return "ok"
+
+    def end_stage(self, state, name: str) -> None:
+        """Record the ``state`` stage ``name`` ended in and its smoothed largest violation."""
+        if self.factor and self.ema is not None:
+            self.ends.append((float(self.ema[1]), state, name))
+
+    def finish(self, state, step: int):
+        """The state the run outputs: ``state`` (the last stage's end), or the latest untorn earlier
+        stage end when the last one's violation ran away (see the class docstring).
+        """
+        if len(self.ends) < 2:
+            return state
+        last, limit = self.ends[-1][0], 5 * self.factor * min(end[0] for end in self.ends[:-1])
+        best, kept, name = [end for end in self.ends[:-1] if end[0] <= limit][-1]  # the latest untorn end
+        if last > limit and last > self.min_violation:
+            self.events.append(
+                {"step": step, "restored_stage_end": name, "violation_smoothed": last, "violation_best": best}
+            )
+            return kept
+        return state

@@ -195,6 +195,7 @@ def train(
                         "try a smaller learning rate (e.g. phases.lr) or check the inputs"
                     )
                 progress.update(done, f"{phase_name} σ={st.sigma:g}", loss, float(watch[1]))
+        guard.end_stage((params, pose, opt_state, lam), f"{phase_name} σ={st.sigma:g}")
         history.append(
             {
                 "phase": phase_name,
@@ -203,6 +204,13 @@ def train(
                 "steps": st.steps,
                 **{k: float(aux[k]) for k in ("loss", "data", "surface", "tissue", "constraint")},
             }
+        )
+    params, pose, opt_state, lam = guard.finish((params, pose, opt_state, lam), done)
+    if guard.events and "restored_stage_end" in guard.events[-1]:
+        ev = guard.events[-1]
+        progress.message(
+            f"the last stage tore a bone (g/eps {ev['violation_smoothed']:.3g}, {ev['violation_best']:.3g} at the end "
+            f"of {ev['restored_stage_end']}): the state at the end of {ev['restored_stage_end']} is kept"
         )
     progress.close()
     leaves = jax.tree_util.tree_leaves(eqx.filter(params, eqx.is_inexact_array))
