@@ -97,7 +97,8 @@ def test_mdmm_meets_tolerance_and_soft_mode_does_not(pair, mdmm_result):
     cs = soft.metrics["constraints"]
     g_soft = max(cs["max_g_endpoint"], cs["max_g_trajectory"])
     # measured on this short run (150 steps; g from 200 fresh samples per bone, pose refitted with
-    # the final multiplier weights; MDMM aiming at 0.7 eps): MDMM 0.78 eps, soft 3.7 eps
+    # the final multiplier weights; MDMM aiming at 0.7 eps): MDMM 0.96 eps (0.78 before the fast preset's
+    # first stage moved to σ 0.25), soft 3.7 eps
     assert g_mdmm <= eps, g_mdmm / eps
     assert g_soft > 2.5 * g_mdmm, (g_soft / eps, g_mdmm / eps)
     # the default (skeleton-driven field) on the same pair: measured 1.14 eps, the smooth bend's
@@ -258,50 +259,3 @@ def test_phase_constraint_weight(tmp_path, pair):
     bones = r.metrics["constraints"]["bones"]
     assert all(b["multiplier_endpoint"] == 0.0 and b["multiplier_trajectory"] == 0.0 for b in bones)
     assert r.metrics["config"]["phases"][0]["constraint_weight"] == 0.0
-
-
-def test_output_programs_compile_during_training_and_change_nothing(pair, monkeypatch):
-    """The output phase's programs (pose refit, frames, skeleton frames) are compiled on a worker
-    thread while the flow trains, so building the result traces and compiles none of them; the
-    outputs are the same as when they compile in the output phase.
-    """
-    import logging
-    import re
-
-    import jax
-
-    from ncflow.match import matcher as matcher_module
-
-    src, tgt, skel, *_ = pair
-    traced: list[str] = []
-    real_build = matcher_module.build_result
-
-    class Names(logging.Handler):
-        def emit(self, record):
-            text = record.getMessage()
-            m = re.search(r"Finished tracing (?:\+ transforming )?(\S+)|Finished XLA compilation of jit\((\w+)\)", text)
-            if m:
-                traced.append(m.group(1) or m.group(2))
-
-    def spied_build(*args, **kwargs):
-        handler = Names()
-        logging.getLogger("jax").addHandler(handler)
-        try:
-            with jax.log_compiles(True):
-                return real_build(*args, **kwargs)
-        finally:
-            logging.getLogger("jax").removeHandler(handler)
-
-    monkeypatch.setattr(matcher_module, "build_result", spied_build)
-    cfg = small_config(steps=(3, 0))
-    early = Matcher(src, tgt, skel, cfg, quiet=True).run()
-    early_traced = list(traced)
-    traced.clear()
-    monkeypatch.setattr(matcher_module.OutputPrograms, "compile_in_background", lambda *a, **k: None)
-    late = Matcher(src, tgt, skel, cfg, quiet=True).run()
-    programs = {"final", "frames", "joints"}
-    assert programs <= set(traced), traced  # compiled in the output phase when not done before
-    assert not programs & set(early_traced), early_traced
-    np.testing.assert_array_equal(early.frames, late.frames)
-    np.testing.assert_array_equal(early.skeleton_frames, late.skeleton_frames)
-    assert early.metrics["constraints"]["bones"] == late.metrics["constraints"]["bones"]

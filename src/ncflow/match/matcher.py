@@ -22,10 +22,10 @@ from ncflow.config import Config, preset, validate_config
 from ncflow.match.objective import Arrays
 from ncflow.match.prepare import prepare
 from ncflow.match.progress import Progress
-from ncflow.match.result import MatchResult, OutputPrograms, build_result, frame_times
+from ncflow.match.result import MatchResult, build_result
 from ncflow.match.stages import build_stages
 from ncflow.match.targets import target_measures
-from ncflow.match.train import TrainingError, initial_state, train
+from ncflow.match.train import TrainingError, train
 
 __all__ = ["Matcher", "MatchResult", "TrainingError", "match"]
 
@@ -68,31 +68,20 @@ class Matcher:
         k_init, k_train, k_eval = jax.random.split(jax.random.key(cfg.seed), 3)
         search = self.problem.pose_search
         initial_pose = None if search is None else search.pose
-        programs = OutputPrograms(self.arrays, cfg)
-        programs.compile_in_background(
-            *initial_state(k_init, cfg, self.arrays.skeleton, initial_pose),
-            k_eval,
-            self.problem.source_vertices,
-            frame_times(cfg),
+        params, pose, lam, cw, history, done, rollbacks = train(
+            self.arrays,
+            self.targets,
+            self.stages,
+            cfg,
+            (k_init, k_train),
+            self.progress,
+            int(self.problem.centroids.shape[0]),
+            initial_pose,
         )
-        try:
-            params, pose, lam, cw, history, done, rollbacks = train(
-                self.arrays,
-                self.targets,
-                self.stages,
-                cfg,
-                (k_init, k_train),
-                self.progress,
-                int(self.problem.centroids.shape[0]),
-                initial_pose,
-            )
-        except BaseException:
-            programs.wait()  # no compilation left running behind a failed run
-            raise
         train_seconds = time.perf_counter() - t_train
         t_out = time.perf_counter()
         result = build_result(
-            self.problem, self.arrays, self.targets, cfg, params, pose, lam, cw, history, k_eval, self.timings, programs
+            self.problem, self.arrays, self.targets, cfg, params, pose, lam, cw, history, k_eval, self.timings
         )
         timings = result.metrics["timings"]
         timings.update(train=train_seconds, per_step=train_seconds / max(done, 1), outputs=time.perf_counter() - t_out)

@@ -10,7 +10,6 @@ writes the output contract (:meth:`MatchResult.save`).
 from __future__ import annotations
 
 import dataclasses
-import logging
 import os
 import platform
 from pathlib import Path
@@ -113,27 +112,19 @@ FINAL_BONE_SAMPLES = 200  # per bone, for the reported g_k (fresh samples, so an
 
 
 class OutputPrograms:
-    """The output phase's compiled programs for one run, compiled while the flow trains (issue 17).
+    """The output phase's programs for one run, each jitted once: ``final`` (:func:`final_pose`'s
+    refit: (field, pose, λ, c_w, key) → (pose, g^EP, g^TR)), ``frames`` ((field, (V, 3) points, (K,)
+    times) → (K, V, 3)) and ``joints`` ((pose, (K,) times) → (K, J, 3) the skeleton per frame).
 
-    The output pose refit alone compiles for seconds (a Gauss–Newton Jacobian through the whole
-    kinematic chain); nothing it computes depends on training except the values it is given. So
-    :meth:`compile_in_background` lowers and compiles every program ahead of time (nothing is
-    run) for the untrained parameters — the same shapes and structure as the trained ones — on a
-    worker thread, and :func:`build_result` calls the already compiled programs (:meth:`wait`
-    first). Measured on a 2-core CPU the compilation only moves into the training phase (the
-    training step already keeps both cores busy); it saves time where a core or the CPU is idle
-    while training runs (a GPU run, more cores). The worker does not inherit thread-local JAX
-    settings (``jax.default_device``): under such settings the real call compiles again.
-
-    Programs: ``final`` (:func:`final_pose`'s refit: (field, pose, λ, c_w, key) → (pose, g^EP, g^TR)),
-    ``frames`` ((field, (V, 3) points, (K,) times) → (K, V, 3)) and ``joints`` ((pose, (K,) times) →
-    (K, J, 3) the skeleton per frame).
+    Compiling them on a worker thread while the flow trains was tried (issue 17): the output phase
+    fell from ~9 s to 0.3 s on a MANO pair, but on 2 cores the training phase grew by as much, and
+    runs stopped being reproducible (a test's largest bone violation came out 1.07 and 1.14 ε in
+    two runs; 0.957 ε in every run without the thread), so they compile when first called.
     """
 
     def __init__(self, arrays, config):
         c = config.constraints
         n_times, skeleton, radii, interp = config.flow.n_times, arrays.skeleton, arrays.radii, config.interp
-        self.n_bones, self._future = skeleton.n_bones, None
 
         @eqx.filter_jit
         def final(field, pose, lam, cw, key):
@@ -156,36 +147,6 @@ class OutputPrograms:
             return jax.vmap(lambda t: interpolate_joints(skeleton, pose, t, interp))(times)
 
         self.final, self.frames, self.joints = final, frames, joints
-
-    def compile_in_background(self, params, pose: Pose, key, source: np.ndarray, times: np.ndarray) -> None:
-        """Compile the programs for ``params``, ``pose`` — any shaped as the trained ones — the
-        ``source`` points and frame ``times`` on a worker thread; a failure there is left for the
-        real call to report.
-        """
-        from concurrent.futures import ThreadPoolExecutor
-
-        lam = jnp.zeros((2, self.n_bones), DTYPE)
-        cw = jnp.ones((2,), DTYPE)
-        points, at = jnp.asarray(source, DTYPE), jnp.asarray(times, DTYPE)
-
-        def compile_all():
-            self.final.lower(params.flow, pose, lam, cw, key).compile()
-            self.frames.lower(params.flow, points, at).compile()
-            self.joints.lower(pose, at).compile()
-
-        pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ncflow-outputs")
-        self._future = pool.submit(compile_all)
-        pool.shutdown(wait=False)
-
-    def wait(self) -> None:
-        """Wait for :meth:`compile_in_background`; its failure is logged (the real call compiles and
-        reports it).
-        """
-        if self._future is not None:
-            error = self._future.exception()
-            if error is not None:
-                logging.getLogger(__name__).debug("output programs: compiling ahead failed: %r", error)
-            self._future = None
 
 
 def final_pose(programs: OutputPrograms, params, pose: Pose, lam, cw, key) -> tuple[Pose, np.ndarray, np.ndarray]:
@@ -223,7 +184,7 @@ def build_result(
 ) -> MatchResult:
     """Flow the full source, refit the pose, interpolate the skeleton, project the target; metrics.
 
-    ``programs``: the run's :class:`OutputPrograms` (compiled during training); default new ones.
+    ``programs``: the run's :class:`OutputPrograms`; default new ones.
 
     Raises:
         TrainingError: the trained flow produced non-finite positions.
@@ -235,7 +196,6 @@ def build_result(
     times = frame_times(cfg)
     if programs is None:
         programs = OutputPrograms(arrays, cfg)
-    programs.wait()
     at = jnp.asarray(times, DTYPE)
     frames_n = np.asarray(programs.frames(params.flow, jnp.asarray(src_v, DTYPE), at), np.float64)
     frames_n[0] = src_v  # t = 0 is the source exactly

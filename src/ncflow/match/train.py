@@ -50,14 +50,6 @@ def init_params(key, config, skeleton: Skeleton, pose: Pose | None = None) -> Pa
     return Params(field, GSONet(kg, width=f.gso_width, depth=f.gso_depth, dtype=DTYPE))
 
 
-def initial_state(key, config, skeleton: Skeleton, pose: Pose | None = None) -> tuple[Params, Pose]:
-    """The parameters (:func:`init_params`) and the skeleton pose training starts from (``pose``,
-    default the rest pose).
-    """
-    start = rest_pose(skeleton, DTYPE) if pose is None else pose
-    return init_params(key, config, skeleton, pose), start
-
-
 def parameter_labels(params: Params):
     """``"pose"`` on the leaves of a skeleton-driven field's pose, ``"net"`` on every other leaf."""
     labels = jax.tree_util.tree_map(lambda _: "net", params)
@@ -132,7 +124,8 @@ def train(
     """
     cfg = config
     k_init, k_train = key
-    params, pose = initial_state(k_init, cfg, arrays.skeleton, initial_pose)
+    params = init_params(k_init, cfg, arrays.skeleton, initial_pose)
+    pose = rest_pose(arrays.skeleton, DTYPE) if initial_pose is None else initial_pose
     optimizer = build_optimizer(cfg)
     opt_state = optimizer.init(eqx.filter(params, eqx.is_inexact_array))
     lam = jnp.zeros((2, arrays.skeleton.n_bones), DTYPE)
