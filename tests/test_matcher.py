@@ -97,8 +97,8 @@ def test_mdmm_meets_tolerance_and_soft_mode_does_not(pair, mdmm_result):
     cs = soft.metrics["constraints"]
     g_soft = max(cs["max_g_endpoint"], cs["max_g_trajectory"])
     # measured on this short run (150 steps; g from 200 fresh samples per bone, pose refitted with
-    # the final multiplier weights; MDMM aiming at 0.7 eps): MDMM 0.96 eps (0.78 before the fast preset's
-    # first stage moved to σ 0.25), soft 3.7 eps
+    # the final multiplier weights; MDMM aiming at 0.7 eps): MDMM 0.96 eps (0.78 before the σ 0.25 start and
+    # the equal kernel tiles of session 11), soft 3.7 eps
     assert g_mdmm <= eps, g_mdmm / eps
     assert g_soft > 2.5 * g_mdmm, (g_soft / eps, g_mdmm / eps)
     # the default (skeleton-driven field) on the same pair: measured 1.14 eps, the smooth bend's
