@@ -97,10 +97,10 @@ class DivergenceGuard:
         if len(self.ends) < 2:
             return state
         last, limit = self.ends[-1][0], 5 * self.factor * min(end[0] for end in self.ends[:-1])
-        best, kept, name = [end for end in self.ends[:-1] if end[0] <= limit][-1]  # the latest untorn end
+        kept_violation, kept, name = [end for end in self.ends[:-1] if end[0] <= limit][-1]  # latest untorn end
         if last > limit and last > self.min_violation:
             self.events.append(
-                {"step": step, "restored_stage_end": name, "violation_smoothed": last, "violation_best": best}
+                {"step": step, "restored_stage_end": name, "violation_smoothed": last, "violation_best": kept_violation}
             )
             return kept
         return state

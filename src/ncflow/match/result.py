@@ -111,56 +111,34 @@ class MatchResult:
 FINAL_BONE_SAMPLES = 200  # per bone, for the reported g_k (fresh samples, so an estimate of the integral)
 
 
-class OutputPrograms:
-    """The output phase's programs for one run, each jitted once: ``final`` (:func:`final_pose`'s
-    refit: (field, pose, λ, c_w, key) → (pose, g^EP, g^TR)), ``frames`` ((field, (V, 3) points, (K,)
-    times) → (K, V, 3)) and ``joints`` ((pose, (K,) times) → (K, J, 3) the skeleton per frame).
-
-    Compiling them on a worker thread while the flow trains was tried (issue 17): the output phase
-    fell from ~9 s to 0.3 s on a MANO pair, but on 2 cores the training phase grew by as much, and
-    runs stopped being reproducible (a test's largest bone violation came out 1.07 and 1.14 ε in
-    two runs; 0.957 ε in every run without the thread), so they compile when first called.
-    """
-
-    def __init__(self, arrays, config):
-        c = config.constraints
-        n_times, skeleton, radii, interp = config.flow.n_times, arrays.skeleton, arrays.radii, config.interp
-
-        @eqx.filter_jit
-        def final(field, pose, lam, cw, key):
-            bones = sample_bones(skeleton, key, FINAL_BONE_SAMPLES, radius=radii, dtype=DTYPE).points
-            xs = flow_points(field, bones.reshape(-1, 3), n_times).reshape(n_times, *bones.shape)
-            times = time_grid(n_times, DTYPE)
-            lam_ep, lam_tr = lam[0] * cw[0], lam[1] * cw[1]
-            fw = constraint_fit_weights(n_times, bones.shape[0], DTYPE, lam_ep, lam_tr, c.trajectory_weight)
-            pose = fit_pose(skeleton, pose, bones, xs, times, interp, iterations=3, weights=fw)
-            ref = rigid_reference(skeleton, pose, bones, times, interp)
-            g_ep, g_tr = bone_constraints(xs, ref)
-            return pose, g_ep, g_tr
-
-        @eqx.filter_jit
-        def frames(field, points, times):
-            return flow_points(field, points, n_times, times=times)
-
-        @jax.jit
-        def joints(pose, times):
-            return jax.vmap(lambda t: interpolate_joints(skeleton, pose, t, interp))(times)
-
-        self.final, self.frames, self.joints = final, frames, joints
-
-
-def final_pose(programs: OutputPrograms, params, pose: Pose, lam, cw, key) -> tuple[Pose, np.ndarray, np.ndarray]:
+def final_pose(arrays, config, params, pose: Pose, lam, cw, key) -> tuple[Pose, np.ndarray, np.ndarray]:
     """The output pose and its (g^EP, g^TR): the training pose refined on FINAL_BONE_SAMPLES fresh
     samples per bone with the final multiplier weights (the per-step fit sees only a few samples).
     One compiled program (run op by op it dispatched ~250 small executables: 20 s on a hand).
     """
-    pose, g_ep, g_tr = programs.final(params.flow, pose, lam, cw, key)
+    c = config.constraints
+    n_times = config.flow.n_times
+    skeleton, radii, interp = arrays.skeleton, arrays.radii, config.interp
+
+    @eqx.filter_jit
+    def run(field, pose, lam, cw, key):
+        bones = sample_bones(skeleton, key, FINAL_BONE_SAMPLES, radius=radii, dtype=DTYPE).points
+        xs = flow_points(field, bones.reshape(-1, 3), n_times).reshape(n_times, *bones.shape)
+        times = time_grid(n_times, DTYPE)
+        fw = constraint_fit_weights(n_times, bones.shape[0], DTYPE, lam[0] * cw[0], lam[1] * cw[1], c.trajectory_weight)
+        pose = fit_pose(skeleton, pose, bones, xs, times, interp, iterations=3, weights=fw)
+        ref = rigid_reference(skeleton, pose, bones, times, interp)
+        g_ep, g_tr = bone_constraints(xs, ref)
+        return pose, g_ep, g_tr
+
+    pose, g_ep, g_tr = run(params.flow, pose, lam, cw, key)
     return pose, np.asarray(g_ep, np.float64), np.asarray(g_tr, np.float64)
 
 
-def frame_times(config) -> np.ndarray:
-    """(K,) the output frames' times: ``config.frames`` uniform in [0, 1]."""
-    return np.linspace(0.0, 1.0, config.frames)
+def joint_frames(skeleton: Skeleton, pose: Pose, times: np.ndarray, interp: str) -> np.ndarray:
+    """(K, J, 3) joint positions at ``times`` (K,) between rest and ``pose``, in one compiled call."""
+    run = jax.jit(jax.vmap(lambda p, t: interpolate_joints(skeleton, p, t, interp), in_axes=(None, 0)))
+    return np.asarray(run(pose, jnp.asarray(times, pose.rotations.dtype)), np.float64)
 
 
 def _versions() -> dict:
@@ -179,12 +157,8 @@ def _versions() -> dict:
     }
 
 
-def build_result(
-    problem, arrays, targets, config, params, pose: Pose, lam, cw, history, key, timings, programs=None
-) -> MatchResult:
+def build_result(problem, arrays, targets, config, params, pose: Pose, lam, cw, history, key, timings) -> MatchResult:
     """Flow the full source, refit the pose, interpolate the skeleton, project the target; metrics.
-
-    ``programs``: the run's :class:`OutputPrograms`; default new ones.
 
     Raises:
         TrainingError: the trained flow produced non-finite positions.
@@ -193,21 +167,21 @@ def build_result(
     norm = problem.normalization
     source, target, skeleton = problem.source, problem.target, problem.skeleton
     src_v = problem.source_vertices
-    times = frame_times(cfg)
-    if programs is None:
-        programs = OutputPrograms(arrays, cfg)
-    at = jnp.asarray(times, DTYPE)
-    frames_n = np.asarray(programs.frames(params.flow, jnp.asarray(src_v, DTYPE), at), np.float64)
+    frame_times = np.linspace(0.0, 1.0, cfg.frames)
+    src = jnp.asarray(src_v, DTYPE)
+    frames_n = np.asarray(
+        flow_points(params.flow, src, cfg.flow.n_times, times=jnp.asarray(frame_times, DTYPE)), np.float64
+    )
     frames_n[0] = src_v  # t = 0 is the source exactly
     deformed_n = frames_n[-1]  # Hermite output at a grid time is the grid state: the state at t = 1
     if not (np.all(np.isfinite(frames_n)) and np.all(np.isfinite(deformed_n))):
         raise TrainingError("the trained flow produced non-finite positions")
-    pose, g_ep, g_tr = final_pose(programs, params, pose, lam, cw, key)
-    joints = np.asarray(programs.joints(pose, at), np.float64)
+    pose, g_ep, g_tr = final_pose(arrays, cfg, params, pose, lam, cw, key)
+    joints = joint_frames(arrays.skeleton, pose, frame_times, cfg.interp)
     maps = correspondence_maps(src_v, source.faces, deformed_n, problem.target_vertices, target.faces)
     pivot = src_v.mean(axis=0)
-    frames_n = move_back(problem.placement, frames_n, times, pivot)
-    joints = move_back(problem.placement, joints, times, pivot)
+    frames_n = move_back(problem.placement, frames_n, frame_times, pivot)
+    joints = move_back(problem.placement, joints, frame_times, pivot)
     deformed_n = frames_n[-1]
     eps = cfg.constraints.eps
     names = skeleton.names or tuple(f"joint {j}" for j in range(skeleton.n_joints))
@@ -263,7 +237,7 @@ def build_result(
         skeleton=skeleton,
         skeleton_target=skeleton.with_positions(norm.invert(joints[-1])),
         deformed_source=norm.invert(deformed_n),
-        frame_times=times,
+        frame_times=frame_times,
         frames=norm.invert(frames_n),
         skeleton_frames=norm.invert(joints),
         maps=maps,
