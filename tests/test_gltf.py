@@ -462,6 +462,13 @@ def test_bad_files(tmp_path):
     g.save_binary(str(draco))
     with pytest.raises(InputError, match="KHR_draco_mesh_compression"):
         pose_gltf(draco)
+    g = _arm_gltf()
+    g.animations[0].samplers[0].interpolation = "n" * 3000  # found by the glTF fuzz test: quoted whole
+    odd = tmp_path / "odd.glb"
+    g.save_binary(str(odd))
+    with pytest.raises(InputError, match="unknown interpolation 'nnn") as info:
+        pose_gltf(odd, time=0.5, animation=g.animations[0].name)
+    assert len(str(info.value)) < len(str(odd)) + 200
 
 
 # ----------------------------------------------------------------------------------------------

@@ -24,6 +24,7 @@ from jaxtyping import Float
 
 from ncflow.errors import InputError
 from ncflow.geometry.rigid import quat_slerp
+from ncflow.io.files import short_repr
 from ncflow.io.gltf.document import DocumentReader, get_field, load_document, malformed
 
 _INTERPOLATIONS = ("LINEAR", "STEP", "CUBICSPLINE")
@@ -156,7 +157,7 @@ def read_animations(doc, reader: DocumentReader, n_nodes: int) -> tuple[list[Ani
             sampler = samplers[int(s)]
             interpolation = get_field(sampler, "interpolation") or "LINEAR"
             if interpolation not in _INTERPOLATIONS:
-                reader.fail(f"animation {a} sampler {s}: unknown interpolation {interpolation!r}")
+                reader.fail(f"animation {a} sampler {s}: unknown interpolation {short_repr(interpolation, 40)}")
             what = f"animation {a} sampler {s}"
             times = reader.accessor(get_field(sampler, "input"), what + " input").reshape(-1).astype(np.float64)
             values = reader.accessor(get_field(sampler, "output"), what + " output").astype(np.float64)
