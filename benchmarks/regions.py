@@ -59,11 +59,19 @@ def main() -> None:
         cells = [f"{err[region == b].mean():.3f}" if np.any(region == b) else "-" for b in range(len(names))]
         print(f"| {k} | " + " | ".join(cells) + f" | {err.mean():.3f} |")
     if truth_skeleton.is_file():
-        true_joints = load_skeleton(truth_skeleton).positions
+        true_skeleton = load_skeleton(truth_skeleton)
+        true_joints = true_skeleton.positions
         tdiag = np.linalg.norm(np.ptp(target.vertices, axis=0))
         print("\njoint error / target diagonal (joint 0 first)")
         for k, run in enumerate(runs):
-            found = load_skeleton(run / "skeleton_target.tgf").positions
+            if not (run / "skeleton_target.tgf").is_file():
+                print(f"run {k}: no skeleton_target.tgf")
+                continue
+            found_skeleton = load_skeleton(run / "skeleton_target.tgf")
+            if not np.array_equal(found_skeleton.parents, true_skeleton.parents):
+                print(f"run {k}: its skeleton is not the target skeleton's tree")
+                continue
+            found = found_skeleton.positions
             print(f"run {k}: " + " ".join(f"{e:.3f}" for e in np.linalg.norm(found - true_joints, axis=1) / tdiag))
 
 

@@ -678,3 +678,73 @@ def test_gltf_json_deep_nesting_and_long_numbers(tmp_path, suffix, kind):
             read(path)
         msg = one_line(ei, path)
         assert len(msg) < len(str(path)) + 200
+
+
+# ----------------------------------------------------------------------------------------------
+# values quoted from a file are cut short (a review of every reader's messages, session 12)
+
+
+def _bounded(exc_info, path) -> str:
+    msg = one_line(exc_info, path)
+    assert len(msg) - len(str(path)) < 400, msg
+    return msg
+
+
+def test_quoted_file_values_are_cut_short(tmp_path):
+    from ncflow.io.ground_truth import read_index_file
+    from ncflow.io.landmarks import read_landmarks
+    from ncflow.io.obj_uv import read_obj_uv
+    from ncflow.io.vertex_arrays import read_vertex_array
+
+    huge = "7" * 4000  # Python reads integers of up to 4300 digits
+    obj = tmp_path / "uv.obj"
+    obj.write_text(f"v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nf 1/1 2/2 {huge}/3\n")
+    with pytest.raises(InputError) as ei:
+        read_obj_uv(obj)
+    assert "out of range" in _bounded(ei, obj)
+
+    marks = tmp_path / "marks.json"
+    marks.write_text(f'[{{"name": "tip", "vertex": {huge}}}]')
+    with pytest.raises(InputError) as ei:
+        read_landmarks(marks, 10)
+    assert "out of range" in _bounded(ei, marks)
+
+    off = tmp_path / "polygons.off"  # 300 faces of 300 different sizes
+    sizes = range(4, 304)
+    faces = "\n".join(f"{k} " + " ".join(str(i % 3) for i in range(k)) for k in sizes)
+    off.write_text(f"OFF\n3 {len(sizes)} 0\n0 0 0\n1 0 0\n0 1 0\n{faces}\n")
+    with pytest.raises(InputError) as ei:
+        load_mesh(off)
+    assert "[4, 5, 6, 7, 8, ...] corners" in _bounded(ei, off)
+
+    structured = np.zeros(3, dtype=[(f"field_{k:04d}", "<f8") for k in range(300)])  # a 9000-character dtype
+    for name, read in (("values.npy", lambda p: read_vertex_array(p, 3)), ("index.npy", read_index_file)):
+        path = tmp_path / name
+        np.save(path, structured)
+        with pytest.raises(InputError) as ei:
+            read(path)
+        assert "dtype" in _bounded(ei, path)
+
+
+def test_clip_list_of_an_unknown_animation_is_cut_short(tmp_path):
+    doc, blob = gltf_document()
+    times = np.array([0.0, 1.0], "<f4").tobytes()
+    rotations = np.tile(np.array([0, 0, 0, 1], "<f4"), (2, 1)).tobytes()
+    for part, ctype in ((times, "SCALAR"), (rotations, "VEC4")):
+        doc["bufferViews"].append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(part)})
+        doc["accessors"].append(
+            {"bufferView": len(doc["bufferViews"]) - 1, "componentType": 5126, "count": 2, "type": ctype}
+        )
+        blob += part
+    doc["buffers"][0] = {"byteLength": len(blob), "uri": "data:;base64," + base64.b64encode(blob).decode()}
+    doc["accessors"][4].update(min=[0.0], max=[1.0])
+    clip = {
+        "samplers": [{"input": 4, "output": 5}],
+        "channels": [{"sampler": 0, "target": {"node": 1, "path": "rotation"}}],
+    }
+    doc["animations"] = [{**clip, "name": f"{k}" + "x" * 2000} for k in range(40)]
+    path = write_gltf(tmp_path / "clips.gltf", doc)
+    with pytest.raises(InputError) as ei:
+        pose_gltf(path, time=0.5, animation="walk")
+    msg = _bounded(ei, path)
+    assert "no animation named 'walk'" in msg and "(40 clips)" in msg

@@ -30,7 +30,7 @@ import numpy as np
 from ncflow.errors import InputError, first_line
 from ncflow.io.arrays import check_finite_tree, dumps_strict, json_safe
 from ncflow.io.atomic import atomic_write_text
-from ncflow.io.files import check_input_file, parse_json_text
+from ncflow.io.files import check_input_file, parse_json_text, short_repr
 
 MAX_LANDMARKS = 100_000
 MAX_NAME_CHARS = 256
@@ -72,7 +72,7 @@ def _entry(item, k: int, n_vertices: int, path) -> Landmark:
     if _is_int(item):
         if not 0 <= item < n_vertices:
             raise InputError(
-                f"{where} ({name[:40]!r}): vertex {item} is out of range [0, {n_vertices - 1}] "
+                f"{where} ({name[:40]!r}): vertex {short_repr(item, 40)} is out of range [0, {n_vertices - 1}] "
                 f"(0-based; the mesh has {n_vertices} vertices)",
                 path,
             )

@@ -250,9 +250,10 @@ def load_mesh(path: str | os.PathLike, *, weld: bool | None = None, validate: bo
     sizes = _declared_polygon_sizes(path)
     if sizes is not None and sizes.size and np.any(sizes != 3):
         bad = int(np.sum(sizes != 3))
+        kinds = np.unique(sizes[sizes != 3])
+        shown = ", ".join(str(k) for k in kinds[:5].tolist()) + (", ..." if kinds.size > 5 else "")
         raise InputError(
-            f"non-triangular faces: {bad} of {sizes.size} faces have {sorted(set(sizes[sizes != 3].tolist()))} "
-            "corners; triangulate the mesh first",
+            f"non-triangular faces: {bad} of {sizes.size} faces have [{shown}] corners; triangulate the mesh first",
             path,
         )
     try:

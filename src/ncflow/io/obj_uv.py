@@ -77,7 +77,7 @@ def _index(token: str, count: int, lineno: int, what: str, path) -> int:
         raise InputError(f"line {lineno}: {what} index {token[:40]!r} is not an integer", path) from None
     k = i - 1 if i > 0 else count + i
     if i == 0 or not 0 <= k < 2**40:
-        raise InputError(f"line {lineno}: {what} index {i} is out of range", path)
+        raise InputError(f"line {lineno}: {what} index {token[:40]} is out of range", path)
     return k
 
 

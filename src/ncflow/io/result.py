@@ -64,7 +64,7 @@ from ncflow.io.arrays import (
     json_safe,
 )
 from ncflow.io.atomic import atomic_path, atomic_write_text, move_into_place, remove_tree, staging_dir
-from ncflow.io.files import read_json_object, read_npz_arrays
+from ncflow.io.files import read_json_object, read_npz_arrays, short_repr
 from ncflow.io.gltf.writer import write_animation_glb
 from ncflow.io.ground_truth import read_index_file
 from ncflow.io.meshes import load_mesh, save_mesh
@@ -443,7 +443,8 @@ def read_result(out_dir: str | os.PathLike, *, check_animation: bool = True) -> 
     arrays = read_npz_arrays(npz_path, ("face", "bary"), ())
     face, bary = arrays["face"], arrays["bary"]
     if face.ndim != 1 or not np.issubdtype(face.dtype, np.integer):
-        raise InputError(f"'face' must be a 1-D integer array, got shape {face.shape} dtype {face.dtype}", npz_path)
+        got = f"shape {short_repr(face.shape, 40)} dtype {short_repr(str(face.dtype), 40)}"
+        raise InputError(f"'face' must be a 1-D integer array, got {got}", npz_path)
     nt = face.shape[0]
     if bary.shape != (nt, 3) or not np.all(np.isfinite(bary)):
         raise InputError(f"'bary' must be finite with shape ({nt}, 3), got {bary.shape}", npz_path)
@@ -576,7 +577,7 @@ def _check_glb(path: Path, k: int, nv: int) -> None:
     try:
         gltf = pygltflib.GLTF2().load_binary(str(path))
     except Exception as exc:
-        raise InputError(f"cannot read glTF binary ({first_line(exc)})", path) from None
+        raise InputError(f"cannot read glTF binary ({first_line(exc)[:80]})", path) from None
     if gltf is None or not gltf.meshes or not gltf.meshes[0].primitives:
         raise InputError("no mesh in the glTF file", path)
     prim = gltf.meshes[0].primitives[0]

@@ -52,6 +52,7 @@ from jaxtyping import Float, Int
 from ncflow.errors import InputError
 from ncflow.geometry.rigid import forward_kinematics, sparse_linear_blend_skinning, trs_matrix
 from ncflow.geometry.skeleton import MAX_JOINTS, Skeleton, _default_labels, merge_zero_length_bones
+from ncflow.io.files import short_repr
 from ncflow.io.gltf.animation import AnimationInfo, Channel, check_time, interpolate_keyframes, read_animations
 from ncflow.io.gltf.document import (
     DocumentReader,
@@ -168,14 +169,16 @@ class GltfSkin:
                 index = int(str(animation).strip())
             except ValueError:
                 raise InputError(
-                    f"no animation named {str(animation)!r}; clips: {self._clip_list()}", self.path
+                    f"no animation named {short_repr(str(animation), 40)}; clips: {self._clip_list()}", self.path
                 ) from None
         if not 0 <= index < len(self.animations):
             raise InputError(f"animation index {index} out of range (clips: {self._clip_list()})", self.path)
         return self.animations[index]
 
-    def _clip_list(self) -> str:
-        return ", ".join(f"{a.index}:{a.name or '(unnamed)'}" for a in self.animations)
+    def _clip_list(self, most: int = 5) -> str:
+        """The first ``most`` clips as ``index:name`` (names cut short), for error messages."""
+        shown = [f"{a.index}:{short_repr(a.name, 24) if a.name else '(unnamed)'}" for a in self.animations[:most]]
+        return ", ".join(shown) + (f", ... ({len(self.animations)} clips)" if len(self.animations) > most else "")
 
     # -- posing ------------------------------------------------------------------------------
 
