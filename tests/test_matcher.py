@@ -79,9 +79,11 @@ def test_mdmm_meets_tolerance_and_soft_mode_does_not(pair, mdmm_result):
     src, tgt, skel, *_ = pair
     # The capsule is bent smoothly, not at a hinge, so its ground truth is not rigid around the
     # bones and the constraints must fight the match: a test of the MDMM machinery itself, run
-    # with the paper's field (the skeleton-driven field would carry most of the bend).
-    paper_field = {"flow.skinning": "false"}
-    c = match(src, tgt, skel, small_config(**paper_field), quiet=True).metrics["constraints"]
+    # with the paper's field (the skeleton-driven field would carry most of the bend). No tissue term:
+    # fTetWild's tetrahedra differ from call to call (std::random_device in its shuffles), and with
+    # them this run's violation (0.76-1.03 eps over four runs at 150 steps).
+    paper_field = {"flow.skinning": "false", "sampling.tissue_samples": "0"}
+    c = match(src, tgt, skel, small_config((90, 135), **paper_field), quiet=True).metrics["constraints"]
     eps = c["eps"]
     g_mdmm = max(c["max_g_endpoint"], c["max_g_trajectory"])
     # the soft weight was chosen where the soft baseline matched this pair about as well as MDMM
@@ -91,14 +93,13 @@ def test_mdmm_meets_tolerance_and_soft_mode_does_not(pair, mdmm_result):
         src,
         tgt,
         skel,
-        small_config(**paper_field, **{"constraints.mode": "soft", "constraints.soft_weight": 0.001}),
+        small_config((90, 135), **paper_field, **{"constraints.mode": "soft", "constraints.soft_weight": 0.001}),
         quiet=True,
     )
     cs = soft.metrics["constraints"]
     g_soft = max(cs["max_g_endpoint"], cs["max_g_trajectory"])
-    # measured on this short run (150 steps; g from 200 fresh samples per bone, pose refitted with
-    # the final multiplier weights; MDMM aiming at 0.7 eps): MDMM 0.96 eps (0.78 before the σ 0.25 start and
-    # the equal kernel tiles of session 11), soft 3.7 eps
+    # measured on this run (225 steps; g from 200 fresh samples per bone, pose refitted with the final
+    # multiplier weights; MDMM aiming at 0.7 eps): MDMM 0.68 eps, soft 8.2 eps, the same in every run
     assert g_mdmm <= eps, g_mdmm / eps
     assert g_soft > 2.5 * g_mdmm, (g_soft / eps, g_mdmm / eps)
     # the default (skeleton-driven field) on the same pair: measured 1.14 eps, the smooth bend's
