@@ -40,7 +40,8 @@ def _session_dir(prefix: str) -> str:
 if "NCFLOW_CACHE_DIR" not in os.environ:
     os.environ["NCFLOW_CACHE_DIR"] = _session_dir("ncflow-test-cache-")
 
-# identical training steps compiled by several matcher runs in one session are reused
+# identical training steps compiled by several matcher runs in one test process are reused (each
+# pytest-xdist worker has its own folder; a test file runs whole in one worker)
 jax.config.update("jax_compilation_cache_dir", _session_dir("ncflow-test-jit-"))
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
