@@ -31,6 +31,16 @@ def kabsch_residual(p: np.ndarray, q: np.ndarray) -> float:
     return float(np.mean(np.sum(((p - pc) @ r.T + qc - q) ** 2, axis=1)))
 
 
+def nearest_bones(points: np.ndarray, heads: np.ndarray, tails: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The segment [heads[b], tails[b]] nearest each point (N,), and the (N, B) unclipped position of
+    each point's projection along every segment (0 at the head, 1 at the tail).
+    """
+    ab = tails - heads
+    t = np.einsum("nbk,bk->nb", points[:, None, :] - heads[None], ab) / np.maximum(np.sum(ab**2, axis=1), 1e-30)
+    closest = heads[None] + np.clip(t, 0.0, 1.0)[..., None] * ab[None]
+    return np.argmin(np.linalg.norm(points[:, None, :] - closest, axis=2), axis=1), t
+
+
 def bone_rigidity(source, target, skeleton, gt, lo: float = 0.1, hi: float = 0.9) -> list[dict]:
     from ncflow.geometry.barycentric import surface_points
     from ncflow.geometry.normalize import fit_normalization
@@ -40,11 +50,7 @@ def bone_rigidity(source, target, skeleton, gt, lo: float = 0.1, hi: float = 0.9
     q = norm.apply(np.asarray(target.vertices))
     joints = norm.apply(skeleton.positions)
     bones = skeleton.bones
-    a, b = joints[bones[:, 0]], joints[bones[:, 1]]
-    ab = b - a
-    t = np.einsum("nbk,bk->nb", p[:, None, :] - a[None], ab) / np.sum(ab**2, axis=1)
-    closest = a[None] + np.clip(t, 0.0, 1.0)[..., None] * ab[None]
-    nearest = np.argmin(np.linalg.norm(p[:, None, :] - closest, axis=2), axis=1)
+    nearest, t = nearest_bones(p, joints[bones[:, 0]], joints[bones[:, 1]])
     rows = []
     for k in range(skeleton.n_bones):
         sel = (nearest == k) & (t[:, k] >= lo) & (t[:, k] <= hi)

@@ -16,20 +16,17 @@ PAIR_DIR holds ``source.ply``, ``target.ply``, ``source_skeleton.tgf`` and ``gt.
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
 
 import numpy as np
 
-
-def segment_distances(points: np.ndarray, heads: np.ndarray, tails: np.ndarray) -> np.ndarray:
-    """(N, B) distance of each point to each segment [head, tail]."""
-    ab = tails - heads
-    t = np.clip(((points[:, None] - heads) * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-30), 0.0, 1.0)
-    return np.linalg.norm(points[:, None] - (heads + t[..., None] * ab), axis=-1)
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 
 def main() -> None:
+    from bone_rigidity import nearest_bones
     from ncflow.geometry.barycentric import surface_points
     from ncflow.io.ground_truth import load_ground_truth
     from ncflow.io.meshes import load_mesh
@@ -41,11 +38,10 @@ def main() -> None:
     source, target = load_mesh(pair / "source.ply"), load_mesh(pair / "target.ply")
     skeleton = load_skeleton(pair / "source_skeleton.tgf")
     gt = load_ground_truth(pair / "gt.npz", source, target)
-    heads = skeleton.positions[skeleton.parents[1:]]
-    tails = skeleton.positions[1:]
-    names = [f"{skeleton.parents[j]}-{j}" for j in range(1, skeleton.n_joints)]
+    bones = skeleton.bones
+    names = [f"{a}-{b}" for a, b in bones.tolist()]
     truth = surface_points(source.vertices, source.faces, gt.face, gt.bary)
-    region = segment_distances(truth, heads, tails).argmin(1)
+    region = nearest_bones(truth, skeleton.positions[bones[:, 0]], skeleton.positions[bones[:, 1]])[0]
     diag = np.linalg.norm(np.ptp(source.vertices, axis=0))
     truth_skeleton = pair / "target_skeleton.tgf"
     for k, run in enumerate(runs):
