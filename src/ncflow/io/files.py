@@ -41,6 +41,13 @@ def short_repr(value, limit: int = _VALUE_CHARS) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
+def dtype_text(dtype) -> str:
+    """A NumPy dtype read from a file, quoted for a message and cut short (a structured dtype's text
+    runs to thousands of characters).
+    """
+    return short_repr(str(dtype), 40)
+
+
 def check_regular_file(path: str | os.PathLike, what: str) -> Path:
     """Raise :class:`InputError` unless ``path`` is an existing regular file (not a folder, FIFO or device)."""
     p = Path(path)
@@ -137,7 +144,7 @@ def read_npy_stream(fh, size: int, what: str, path, max_bytes: int = MAX_ARRAY_B
     if dtype.hasobject:
         raise InputError(f"{what}: object arrays are not accepted (they need pickles)", path)
     if dtype.itemsize == 0:
-        raise InputError(f"{what}: zero-size item type {short_repr(str(dtype))}", path)
+        raise InputError(f"{what}: zero-size item type {dtype_text(dtype)}", path)
     count = math.prod(int(s) for s in shape)
     nbytes = count * dtype.itemsize
     if nbytes > max_bytes:

@@ -42,7 +42,7 @@ from ncflow.errors import InputError, first_line
 from ncflow.geometry.barycentric import vertex_surface_points
 from ncflow.geometry.mesh import Mesh
 from ncflow.io.atomic import atomic_path
-from ncflow.io.files import MAX_ARRAY_BYTES, check_regular_file, read_npy_array, read_npz_arrays, short_repr
+from ncflow.io.files import MAX_ARRAY_BYTES, check_regular_file, dtype_text, read_npy_array, read_npz_arrays, short_repr
 
 GT_FORMATS = ("identity", "vts", "index", "npz", "template")
 _SUFFIX_FORMAT = {".vts": "vts", ".txt": "index", ".npy": "index", ".npz": "npz"}
@@ -156,7 +156,7 @@ def _read_indices(path: Path) -> tuple[np.ndarray, _Where]:
                 raise InputError("vertex indices out of range (above 2**62)", path)
             return arr.astype(np.int64), where
         if not np.issubdtype(arr.dtype, np.floating):
-            raise InputError(f"expected integer vertex indices, got dtype {short_repr(str(arr.dtype), 40)}", path)
+            raise InputError(f"expected integer vertex indices, got dtype {dtype_text(arr.dtype)}", path)
         return _parse_integers(path, arr.astype(np.float64), where), where
     try:
         text = path.read_text(errors="strict")
@@ -220,7 +220,7 @@ def _load_npz(path: Path, source: Mesh, target: Mesh, bary_tol: float) -> Ground
     if "target_index" in arrays:
         ti = arrays["target_index"]
         if ti.ndim != 1 or ti.shape[0] != face.shape[0] or not np.issubdtype(ti.dtype, np.integer):
-            got = f"{short_repr(str(ti.dtype), 40)} {short_repr(ti.shape, 40)}"
+            got = f"{dtype_text(ti.dtype)} {short_repr(ti.shape, 40)}"
             raise InputError(f"array 'target_index' must be integers of shape ({face.shape[0]},), got {got}", path)
         bad = (ti < 0) | (ti >= target.n_vertices)
         if np.any(bad):
@@ -238,7 +238,7 @@ def _load_npz(path: Path, source: Mesh, target: Mesh, bary_tol: float) -> Ground
     if np.issubdtype(face.dtype, np.floating):
         face = _parse_integers(path, face.astype(np.float64), _Where("face entry"))
     elif not np.issubdtype(face.dtype, np.integer):
-        raise InputError(f"array 'face' must hold integers, got dtype {short_repr(str(face.dtype), 40)}", path)
+        raise InputError(f"array 'face' must hold integers, got dtype {dtype_text(face.dtype)}", path)
     face = face.astype(np.int64)
     bad = (face < 0) | (face >= source.n_faces)
     if np.any(bad):
@@ -254,7 +254,7 @@ def _load_npz(path: Path, source: Mesh, target: Mesh, bary_tol: float) -> Ground
 
 def _check_bary(bary: np.ndarray, path, tol: float) -> np.ndarray:
     if not np.issubdtype(bary.dtype, np.floating) and not np.issubdtype(bary.dtype, np.integer):
-        raise InputError(f"array 'bary' must hold numbers, got dtype {short_repr(str(bary.dtype), 40)}", path)
+        raise InputError(f"array 'bary' must hold numbers, got dtype {dtype_text(bary.dtype)}", path)
     b = bary.astype(np.float64)
     nan = ~np.all(np.isfinite(b), axis=1)
     if np.any(nan):

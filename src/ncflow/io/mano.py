@@ -33,7 +33,7 @@ import numpy as np
 
 from ncflow.errors import InputError, first_line
 from ncflow.geometry.skeleton import MAX_JOINTS
-from ncflow.io.files import check_regular_file, read_npz_arrays, short_repr
+from ncflow.io.files import check_regular_file, dtype_text, read_npz_arrays, short_repr
 
 MAX_MANO_BYTES = 256 * 2**20
 """Largest total size of the arrays of a MANO model file (256 MiB; the real model holds about 4 MiB)."""
@@ -315,7 +315,7 @@ def _read_file(path: Path) -> dict:
 def _numeric(arr: np.ndarray, key: str, path, ndim: int, integer: bool = False) -> np.ndarray:
     """``arr`` as float64 (int64 when ``integer``), checked: numbers, ``ndim`` dimensions, finite, integral."""
     if arr.dtype.kind not in "biuf":
-        raise InputError(f"MANO key {key!r} must hold numbers, got dtype {short_repr(str(arr.dtype))}", path)
+        raise InputError(f"MANO key {key!r} must hold numbers, got dtype {dtype_text(arr.dtype)}", path)
     if arr.ndim != ndim:
         raise InputError(f"MANO key {key!r} must be {ndim}-D, got shape {short_repr(arr.shape)}", path)
     out = arr.astype(np.float64)

@@ -64,7 +64,7 @@ from ncflow.io.arrays import (
     json_safe,
 )
 from ncflow.io.atomic import atomic_path, atomic_write_text, move_into_place, remove_tree, staging_dir
-from ncflow.io.files import read_json_object, read_npz_arrays, short_repr
+from ncflow.io.files import dtype_text, read_json_object, read_npz_arrays, short_repr
 from ncflow.io.gltf.writer import write_animation_glb
 from ncflow.io.ground_truth import read_index_file
 from ncflow.io.meshes import load_mesh, save_mesh
@@ -443,7 +443,7 @@ def read_result(out_dir: str | os.PathLike, *, check_animation: bool = True) -> 
     arrays = read_npz_arrays(npz_path, ("face", "bary"), ())
     face, bary = arrays["face"], arrays["bary"]
     if face.ndim != 1 or not np.issubdtype(face.dtype, np.integer):
-        got = f"shape {short_repr(face.shape, 40)} dtype {short_repr(str(face.dtype), 40)}"
+        got = f"shape {short_repr(face.shape, 40)} dtype {dtype_text(face.dtype)}"
         raise InputError(f"'face' must be a 1-D integer array, got {got}", npz_path)
     nt = face.shape[0]
     if bary.shape != (nt, 3) or not np.all(np.isfinite(bary)):

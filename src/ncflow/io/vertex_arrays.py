@@ -35,7 +35,7 @@ from jaxtyping import Shaped
 from ncflow.errors import InputError, first_line
 from ncflow.io.arrays import check_finite
 from ncflow.io.atomic import atomic_path, atomic_write_text
-from ncflow.io.files import MAX_ARRAY_BYTES, check_input_file, read_npy_array, short_repr
+from ncflow.io.files import MAX_ARRAY_BYTES, check_input_file, dtype_text, read_npy_array
 
 ARRAY_SUFFIXES = (".npy", ".txt")
 
@@ -59,8 +59,7 @@ def _as_attribute_dtype(arr: np.ndarray, path, where: str = "array") -> np.ndarr
         return arr.astype(np.int64)
     if kind == "f":
         return arr.astype(np.float64)
-    dtype = short_repr(str(arr.dtype), 40)
-    raise InputError(f"{where}: expected integers or floating-point numbers, got dtype {dtype}", path)
+    raise InputError(f"{where}: expected integers or floating-point numbers, got dtype {dtype_text(arr.dtype)}", path)
 
 
 def _check_rows(arr: np.ndarray, n_rows: int, path, max_columns: int) -> np.ndarray:
