@@ -96,6 +96,20 @@ def gltf_document(buffer_uri: str | None = None, n_mesh_nodes: int = 1, skinned:
     return doc, blob
 
 
+def with_keyframes(doc: dict, blob: bytes, times: np.ndarray) -> dict:
+    """``doc`` (from :func:`gltf_document`) with accessors 4 (the float32 ``times``) and 5 (as many
+    identity rotations) appended to its embedded buffer, for animation samplers."""
+    rotations = np.tile(np.array([0, 0, 0, 1], "<f4"), (times.size, 1))
+    for part, ctype in ((times.astype("<f4").tobytes(), "SCALAR"), (rotations.tobytes(), "VEC4")):
+        doc["bufferViews"].append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(part)})
+        doc["accessors"].append(
+            {"bufferView": len(doc["bufferViews"]) - 1, "componentType": 5126, "count": times.size, "type": ctype}
+        )
+        blob += part
+    doc["buffers"][0] = {"byteLength": len(blob), "uri": "data:;base64," + base64.b64encode(blob).decode()}
+    return doc
+
+
 def write_gltf(path, doc: dict):
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(doc))
@@ -522,17 +536,7 @@ def test_one_mesh_instanced_by_5000_nodes_is_refused_quickly(tmp_path):
 
 
 def test_one_clip_decoded_by_many_channels_is_refused(tmp_path):
-    doc, blob = gltf_document()
-    n = 2**16
-    times = np.arange(n, dtype="<f4").tobytes()
-    rotations = np.tile(np.array([0, 0, 0, 1], "<f4"), (n, 1)).tobytes()
-    for part, ctype in ((times, "SCALAR"), (rotations, "VEC4")):
-        doc["bufferViews"].append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(part)})
-        doc["accessors"].append(
-            {"bufferView": len(doc["bufferViews"]) - 1, "componentType": 5126, "count": n, "type": ctype}
-        )
-        blob += part
-    doc["buffers"][0] = {"byteLength": len(blob), "uri": "data:;base64," + base64.b64encode(blob).decode()}
+    doc = with_keyframes(*gltf_document(), np.arange(2**16, dtype="<f4"))
     doc["animations"] = [
         {
             "samplers": [{"input": 4, "output": 5}] * 200,  # each channel its own sampler, the same 1.25 MiB
@@ -727,16 +731,7 @@ def test_quoted_file_values_are_cut_short(tmp_path):
 
 
 def test_clip_list_of_an_unknown_animation_is_cut_short(tmp_path):
-    doc, blob = gltf_document()
-    times = np.array([0.0, 1.0], "<f4").tobytes()
-    rotations = np.tile(np.array([0, 0, 0, 1], "<f4"), (2, 1)).tobytes()
-    for part, ctype in ((times, "SCALAR"), (rotations, "VEC4")):
-        doc["bufferViews"].append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(part)})
-        doc["accessors"].append(
-            {"bufferView": len(doc["bufferViews"]) - 1, "componentType": 5126, "count": 2, "type": ctype}
-        )
-        blob += part
-    doc["buffers"][0] = {"byteLength": len(blob), "uri": "data:;base64," + base64.b64encode(blob).decode()}
+    doc = with_keyframes(*gltf_document(), np.array([0.0, 1.0], "<f4"))
     doc["accessors"][4].update(min=[0.0], max=[1.0])
     clip = {
         "samplers": [{"input": 4, "output": 5}],
