@@ -100,6 +100,78 @@ def test_points_near_a_bone_axis_move_rigidly_with_it(interp):
     assert errors[1] < errors[0] / 3, errors
 
 
+def _turn(deg):
+    return quat_from_rotvec(jnp.asarray([0, 0, np.radians(deg)]))
+
+
+def _miss_at_the_end(skel, pose, bone, p):
+    """How far each weight mode leaves point p (on ``bone``) from that bone's rigid motion at t = 1."""
+    pts = np.zeros((skel.n_bones, 1, 3))
+    pts[bone] = p
+    ref = rigid_reference(skel, pose, jnp.asarray(pts), jnp.asarray([1.0]))[0, bone]
+    miss = {}
+    for mode in ("start", "current"):
+        field = SkinnedField(_residual(alpha=0.0), skel, pose, width=0.05, dtype=jnp.float64, weight_mode=mode)
+        miss[mode] = float(np.linalg.norm(np.asarray(flow_points(field, jnp.asarray(p), 40)[-1] - ref)))
+    return ref, miss
+
+
+def test_start_weights_let_a_curling_limb_reach_another_limb():
+    # a chain along x: bone 0 of length 1, a short bone 1, bone 2 of length 1; joints 1 and 2 turn 90°
+    # each, so bone 2 ends parallel to bone 0, 0.1 above it (a fingertip curled onto the palm)
+    skel = Skeleton.from_arrays([[0, 0, 0], [1.0, 0, 0], [1.1, 0, 0], [2.1, 0, 0]], [-1, 0, 1, 2])
+    one = jnp.asarray([1.0, 0, 0, 0])
+    pose = Pose(jnp.stack([one, _turn(90), _turn(90), one]), jnp.zeros(3))
+    p = np.array([[1.6, 0.06, 0.0]])  # on bone 2's side that ends up facing bone 0
+    ref, miss = _miss_at_the_end(skel, pose, 2, p)
+    np.testing.assert_allclose(np.asarray(ref), [[0.5, 0.04, 0.0]], atol=1e-9)  # 0.04 from bone 0
+    # weights of the start: the point rides bone 2 all the way (the integrator's error only) ...
+    assert miss["start"] < 6e-3, miss
+    # ... weights of the current place: the resting bone 0 takes the point over as it comes near
+    assert miss["current"] > 2.5e-2 and miss["current"] > 5 * miss["start"], miss
+
+
+def test_start_weights_let_a_folding_bone_reach_its_parent():
+    # two bones of one joint: the second folds back by 178° onto the first
+    skel = Skeleton.from_arrays([[0, 0, 0], [1.0, 0, 0], [2.0, 0, 0]], [-1, 0, 1])
+    one = jnp.asarray([1.0, 0, 0, 0])
+    pose = Pose(jnp.stack([one, _turn(178), one]), jnp.zeros(3))
+    p = np.array([[1.5, 0.03, 0.0]])
+    ref, miss = _miss_at_the_end(skel, pose, 1, p)
+    c, s = np.cos(np.radians(178.0)), np.sin(np.radians(178.0))
+    np.testing.assert_allclose(np.asarray(ref), [[1 + 0.5 * c - 0.03 * s, 0.5 * s + 0.03 * c, 0.0]], atol=1e-9)
+    assert miss["start"] < 6e-3, miss  # fixed weights: the point rides its bone
+    assert miss["current"] > 2.5e-2 and miss["current"] > 5 * miss["start"], miss  # taken over near the end
+
+
+@pytest.mark.parametrize("mode", ["start", "current"])
+def test_skinned_flow_matches_an_independent_ode_solution(mode):
+    """The flow of the articulated part against scipy's adaptive RK45 on dx/dt = Σ_b w_b ξ_b(t)(x),
+    with w_b taken at the start x(0), or at the current x(t) (the field's own weight function).
+    """
+    from scipy.integrate import solve_ivp
+
+    skel, pose = _skeleton(), _pose(_skeleton())
+    field = SkinnedField(_residual(alpha=0.0), skel, pose, width=0.3, dtype=jnp.float64, weight_mode=mode)
+    x0 = np.array([[0.1, 0.05, 1.0], [0.0, 0.3, 1.9], [0.5, -0.1, 1.1], [0.05, 0.0, 0.4]])  # near joints
+    rest = skinning_weights(
+        jnp.asarray(x0), jnp.asarray(POSITIONS[skel.bones[:, 0]]), jnp.asarray(POSITIONS[skel.bones[:, 1]]), 0.3
+    )
+    assert np.all(np.asarray(rest).max(1) < 0.95)  # the test exercises blending
+
+    def rhs(t, y):
+        x = y.reshape(-1, 3)
+        r, c, dr, dc = (np.asarray(a) for a in bone_velocities(skel, field.swing_pose(), t))
+        w = np.asarray(rest) if mode == "start" else np.asarray(field.weights(jnp.asarray(x), t))
+        xi = np.einsum("bij,bkj,nbk->nbi", dr, r, x[:, None, :] - c[None]) + dc[None]  # (N, B, 3) bone velocities
+        return np.einsum("nb,nbi->ni", w, xi).reshape(-1)
+
+    ref = solve_ivp(rhs, (0.0, 1.0), x0.reshape(-1), rtol=1e-9, atol=1e-11).y[:, -1].reshape(-1, 3)
+    errors = [float(np.abs(np.asarray(flow_points(field, jnp.asarray(x0), n)[-1]) - ref).max()) for n in (20, 40)]
+    assert errors[0] < 5e-3, errors
+    assert errors[1] < errors[0] / 3, errors  # second order: the error is the integrator's
+
+
 def test_pose_gradient_is_finite_at_rest_and_moves_the_points():
     skel = _skeleton()
     pts = jnp.asarray(np.random.default_rng(4).normal(scale=0.3, size=(30, 3)) + [0, 0, 1.5])

@@ -74,6 +74,11 @@ class FlowConfig:
     ``skinning`` adds the skeleton's blended rigid bone velocities to the Flow-Net, with the pose
     trained by the data term (:class:`ncflow.flow.SkinnedField`; not in the paper, on in ``fast``);
     ``skinning_width`` is the width τ of its bone weights as a fraction of the median bone length;
+    ``skinning_weights`` is where a point's bone weights are taken: ``"current"`` (its current
+    place: a flow of space, a diffeomorphism), ``"start"`` (its starting place: limbs can meet and
+    pass through each other, as the fingertips and palm of captured fists do) or ``"auto"``
+    (``"start"`` when the target passes through itself over more of its area than the source does,
+    :func:`ncflow.match.prepare.skinning_weight_mode`);
     ``pose_lr_scale`` multiplies the learning rate of that pose (its quaternions take sign-like
     steps of about lr each, too slow for a 100° joint in a few hundred steps at the flow's rate).
     """
@@ -83,6 +88,7 @@ class FlowConfig:
     div_free: bool = False
     skinning: bool = True
     skinning_width: float = 0.05
+    skinning_weights: str = "auto"
     pose_lr_scale: float = 5.0
     n_times: int = 10
     gso_width: int = 32
@@ -651,6 +657,10 @@ def validate_config(config: Config) -> Config:
     )
     checks = [
         (_finite(flow.skinning_width) and flow.skinning_width > 0, "flow.skinning_width must be positive"),
+        (
+            flow.skinning_weights in ("auto", "current", "start"),
+            "flow.skinning_weights must be 'auto', 'current' or 'start'",
+        ),
         (_finite(flow.pose_lr_scale) and flow.pose_lr_scale >= 0, "flow.pose_lr_scale must be non-negative"),
         (
             not (flow.skinning and flow.div_free),

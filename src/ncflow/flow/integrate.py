@@ -56,13 +56,14 @@ def integrate(
     Returns:
         xs (T, N, 3) with xs[0] = x0 and xs[-1] the state at t = 1, and vs (T, N, 3) the slopes v_k.
 
-    A field with an ``on_grid(n_times, dtype)`` method (:class:`~ncflow.flow.SkinnedField`) is
-    replaced by what it returns: the same field with its time-only parts tabulated on the grid.
+    A field with an ``on_grid(n_times, dtype, x0)`` method (:class:`~ncflow.flow.SkinnedField`) is
+    replaced by what it returns: the same field with its time-only parts tabulated on the grid and
+    its parts that depend on each point's start (the skinned field's bone weights) computed at x0.
     """
     x0 = jnp.asarray(x0)
     ts = time_grid(n_times, x0.dtype)
     if hasattr(field, "on_grid"):
-        field = field.on_grid(n_times, x0.dtype)
+        field = field.on_grid(n_times, x0.dtype, x0)
     h = jnp.asarray(1.0 / (n_times - 1), x0.dtype)
     g = eqx.filter_checkpoint(lambda x, t: field(x, t)) if checkpoint else field
 

@@ -14,13 +14,31 @@ relative motion of the two bones is small. The pose (joint rotations and root tr
 :class:`~ncflow.skeleton.kinematics.Pose`) is a trainable leaf of the module, so the data term
 drives the skeleton directly.
 
+Where the weights are taken (``weight_mode``):
+
+* ``"current"`` (the class default): at the point's current place, w_b(x(t), t) — a velocity
+  field of space, so the flow stays a diffeomorphism. Around a bending joint a point is handed
+  from one bone to the other as it moves; but a part that comes near another limb's bone is taken
+  over by that bone's motion, and no part can pass through another.
+* ``"start"``: at the place the point starts from, w_b(x(0), 0), kept along its path (linear
+  blend skinning's velocity). The velocity then depends on each point's start as well as on its
+  place, so the motion is no longer a flow of space, and surfaces of different limbs can meet and
+  pass through each other, as captured and rigged targets with self-contact do (a tucked
+  fingertip of a MANO fist lies partly inside the palm: with ``"current"`` the palm takes the
+  fingertip over, and its surface is left on its own middle phalanx; benchmarks/RESULTS.md,
+  "Fists: bone weights at the start"). Each trajectory still depends only on its own start, so
+  any point set (the full-resolution source, frames) is moved by the same trained field.
+
+The matcher chooses between them per pair (``flow.skinning_weights = "auto"``, see
+:func:`ncflow.match.prepare.skinning_weight_mode`).
+
 This is not in the paper: there the Flow-Net alone has to produce the articulated motion and the
 bone constraints (MDMM) make it rigid around the bones. With the small network and the few
 hundred steps that fit a CPU budget, that leaves the bones several times the tolerance from
 rigid; with the skeleton's velocities built in, the network only carries the non-articulated
-remainder (skin sliding, bulging) and the constraints act on that remainder. The field is
-smooth in x and t, so the flow stays a diffeomorphism. ``flow.skinning`` turns it on (the
-``fast`` preset) or off (the ``paper`` preset: the paper's field).
+remainder (skin sliding, bulging) and the constraints act on that remainder. ``flow.skinning``
+turns it on (the ``fast`` preset) or off (the ``paper`` preset: the paper's field, a
+diffeomorphism); ``flow.skinning_weights`` chooses ``weight_mode``.
 """
 
 from __future__ import annotations
@@ -101,6 +119,9 @@ class SkinnedField(eqx.Module):
         pose: initial pose (default: the rest pose, so the field starts as the residual alone).
         width: τ of the weights, in the units of the points.
         interp: "sclerp" (default) or "slerp", as :func:`ncflow.skeleton.interpolate_world`.
+        weight_mode: "current" (default) or "start" — where the bone weights are taken; see the
+            module docstring. Only the integrator (:func:`ncflow.flow.integrate`, through
+            :meth:`on_grid`) knows the starts: a direct call ``field(x, t)`` takes x as the start.
     """
 
     residual: eqx.Module
@@ -108,6 +129,7 @@ class SkinnedField(eqx.Module):
     skeleton: Skeleton = eqx.field(static=True)
     width: float = eqx.field(static=True)
     interp: str = eqx.field(static=True, default="sclerp")
+    weight_mode: str = eqx.field(static=True, default="current")
 
     def __init__(
         self,
@@ -117,14 +139,18 @@ class SkinnedField(eqx.Module):
         width: float = 0.05,
         interp: str = "sclerp",
         dtype=jnp.float32,
+        weight_mode: str = "current",
     ):
         if not width > 0:
             raise ValueError(f"width must be positive, got {width}")
+        if weight_mode not in WEIGHT_MODES:
+            raise ValueError(f"weight_mode must be one of {WEIGHT_MODES}, got {weight_mode!r}")
         self.residual = residual
         self.skeleton = skeleton
         self.pose = rest_pose(skeleton, dtype) if pose is None else pose
         self.width = float(width)
         self.interp = interp
+        self.weight_mode = weight_mode
 
     def swing_pose(self) -> Pose:
         """The pose the bones move by: the trained pose with the twist of every joint that has
@@ -145,30 +171,46 @@ class SkinnedField(eqx.Module):
         tails = jnp.einsum("bij,bj->bi", r, rest[bones[:, 1]], precision=_HIGHEST) + c
         return heads, tails, c, jnp.einsum("bij,bkj->bik", dr, r, precision=_HIGHEST), dc  # Ω = Ṙ Rᵀ
 
-    def weights(self, x: Float[Array, "N 3"], t: Float[Array, ""] | float) -> Float[Array, "N B"]:
-        """Bone weights w_b(x, t) of points x at time t (rows sum to 1)."""
+    def weights(
+        self, x: Float[Array, "N 3"], t: Float[Array, ""] | float, x0: Float[Array, "N 3"] | None = None
+    ) -> Float[Array, "N B"]:
+        """Bone weights of points x at time t that started at x0 (default x), by ``weight_mode``
+        (rows sum to 1).
+        """
+        if self.weight_mode == "start":
+            x, t = (x if x0 is None else x0), jnp.zeros((), self.pose.rotations.dtype)
         heads, tails, *_ = self._motion(t)
         return skinning_weights(x, heads, tails, self.width)
 
     def skeleton_velocity(self, x: Float[Array, "N 3"], t: Float[Array, ""] | float) -> Float[Array, "N 3"]:
-        """The articulated part Σ_b w_b ξ_b(x) at points x (N, 3) and time t."""
+        """The articulated part Σ_b w_b ξ_b(x) at points x (N, 3) and time t (x taken as the start too)."""
         return _blend(x, self._motion(t), self.width)
 
     def __call__(self, x: Float[Array, "N 3"], t: Float[Array, ""] | float) -> Float[Array, "N 3"]:
-        """Velocities at points x (N, 3) and time t (scalar)."""
+        """Velocities at points x (N, 3) and time t (scalar), x taken as the start too."""
         return self.skeleton_velocity(x, t) + self.residual(x, t)
 
-    def on_grid(self, n_times: int, dtype=None) -> _GridSkinnedField:
-        """The same field for the integrator's grid t_k = k/(T−1): the bones' motions at the T grid
-        times are computed once (one batched forward kinematics) instead of at every evaluation.
+    def on_grid(self, n_times: int, dtype=None, x0: Float[Array, "N 3"] | None = None) -> _GridSkinnedField:
+        """The same field for the integrator's grid t_k = k/(T−1) and the start points ``x0``: the
+        bones' motions at the T grid times are computed once (one batched forward kinematics)
+        instead of at every evaluation, and with ``weight_mode="start"`` so are the weights of the
+        (N, 3) start points (the returned field is then called on those N trajectories only).
         """
         times = time_grid(n_times, dtype or self.pose.rotations.dtype)
-        return _GridSkinnedField(self.residual, jax.vmap(self._motion)(times), self.width, n_times)
+        motion = jax.vmap(self._motion)(times)
+        fixed = None
+        if self.weight_mode == "start" and x0 is not None:
+            fixed = skinning_weights(jnp.asarray(x0), motion[0][0], motion[1][0], self.width)  # bones at t_0 = 0
+        return _GridSkinnedField(self.residual, motion, self.width, n_times, fixed)
 
 
-def _blend(x, motion, width):
+WEIGHT_MODES = ("current", "start")
+"""Where a :class:`SkinnedField` takes its bone weights: at each point's current place or its start."""
+
+
+def _blend(x, motion, width, fixed=None):
     heads, tails, c, omega, dc = motion
-    w = skinning_weights(x, heads, tails, width).astype(x.dtype)  # (N, B)
+    w = (skinning_weights(x, heads, tails, width) if fixed is None else fixed).astype(x.dtype)  # (N, B)
     # Σ_b w_b (Ω_b x + k_b), k_b = ċ_b − Ω_b c_b, as two matrix products
     k = (dc - jnp.einsum("bij,bj->bi", omega, c, precision=_HIGHEST)).astype(x.dtype)
     wx = (w[:, :, None] * x[:, None, :]).reshape(x.shape[0], -1)  # (N, 3B)
@@ -177,14 +219,16 @@ def _blend(x, motion, width):
 
 class _GridSkinnedField(eqx.Module):
     """A :class:`SkinnedField` whose bone motions are tabulated at t_k = k/(T−1); called at a grid
-    time (the integrator only evaluates there), it looks the motions up.
+    time (the integrator only evaluates there), it looks the motions up. With ``fixed`` (N, B)
+    weights (those of the start points) it is called on those N trajectories only.
     """
 
     residual: eqx.Module
     motion: tuple
     width: float = eqx.field(static=True)
     n_times: int = eqx.field(static=True)
+    fixed: Array | None = None
 
     def __call__(self, x, t):
         k = jnp.clip(jnp.round(jnp.asarray(t) * (self.n_times - 1)), 0, self.n_times - 1).astype(jnp.int32)
-        return _blend(x, tuple(m[k] for m in self.motion), self.width) + self.residual(x, t)
+        return _blend(x, tuple(m[k] for m in self.motion), self.width, self.fixed) + self.residual(x, t)

@@ -77,6 +77,7 @@ class Matcher:
             self.progress,
             int(self.problem.centroids.shape[0]),
             initial_pose,
+            self.problem.skinning_weights["mode"],
         )
         train_seconds = time.perf_counter() - t_train
         t_out = time.perf_counter()
@@ -88,6 +89,7 @@ class Matcher:
         result.metrics["rollbacks"] = rollbacks
         result.metrics["pose_search"] = None if search is None else search.to_dict()
         result.metrics["placement_trials"] = list(self.problem.placement_trials)
+        result.metrics["skinning_weights"] = dict(self.problem.skinning_weights)
         timings["total"] = sum(v for k, v in timings.items() if k in ("setup", "train", "outputs"))
         return result
 

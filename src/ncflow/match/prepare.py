@@ -21,6 +21,7 @@ from ncflow.errors import InputError
 from ncflow.geometry.decimate import Decimation, decimate
 from ncflow.geometry.mesh import Mesh
 from ncflow.geometry.normalize import Normalization, fit_normalization
+from ncflow.geometry.overlap import self_overlap
 from ncflow.geometry.topology import Topology, mesh_topology
 from ncflow.io.meshes import load_mesh
 from ncflow.match.placement import Placement, place_target, placement_candidates
@@ -56,6 +57,8 @@ class Problem:
         pose_search: the skeleton pose found for the chosen placement (None when the search is off).
         pose_search_seconds: wall time of the pose search(es).
         placement_trials: per placement candidate tried, its angle and articulated score.
+        skinning_weights: the skeleton-driven field's weight mode and why
+            (:func:`skinning_weight_mode`).
     """
 
     source: Mesh
@@ -78,6 +81,7 @@ class Problem:
     pose_search: PoseSearchResult | None = None
     pose_search_seconds: float = 0.0
     placement_trials: tuple[dict, ...] = ()
+    skinning_weights: dict = dataclasses.field(default_factory=lambda: {"setting": "current", "mode": "current"})
 
 
 def skinning_width(config, skeleton: Skeleton) -> float:
@@ -201,6 +205,13 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Prob
     tgt_v = placement.apply(tgt_v)
     t0 = time.perf_counter()
     centroids, tissue_info = source_tissue(work, config, message)
+    tissue_seconds = time.perf_counter() - t0
+    weights = skinning_weight_mode(config, work.vertices, work.faces, tgt.vertices, tgt.faces)
+    if weights["mode"] == "start" and config.flow.skinning_weights == "auto":
+        message(
+            f"the target passes through itself ({weights['target_overlap']:.1%} of its area, the source "
+            f"{weights['source_overlap']:.1%}): bone weights taken at each point's start"
+        )
     return Problem(
         source=src,
         target=tgt,
@@ -217,9 +228,38 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Prob
         centroids=centroids,
         tissue_info=tissue_info,
         warnings=tuple(warnings),
-        tissue_seconds=time.perf_counter() - t0,
+        tissue_seconds=tissue_seconds,
         placement_seconds=t_place,
         pose_search=search,
         pose_search_seconds=t_search,
         placement_trials=trials,
+        skinning_weights=weights,
     )
+
+
+AUTO_OVERLAP = 0.005
+"""``flow.skinning_weights = "auto"`` takes the weights at the start when the target's self-overlap
+exceeds the source's by more than this share of the area."""
+
+
+def skinning_weight_mode(config, source_vertices, source_faces, target_vertices, target_faces) -> dict:
+    """Where the skeleton-driven field takes its bone weights (:class:`ncflow.flow.SkinnedField`).
+
+    ``flow.skinning_weights`` "current" or "start" is used as it is. With "auto" (the default):
+    "start" when the target passes through itself (:func:`ncflow.geometry.overlap.self_overlap`)
+    over more than :data:`AUTO_OVERLAP` more of its area than the source does — a flow of space
+    cannot make a surface pass through itself, so such a target (the fingertips of a captured or
+    rigged fist sunk into the palm) needs the weights of the start; otherwise "current", the
+    diffeomorphic flow. Returns ``{"setting", "mode", "source_overlap", "target_overlap"}``
+    (overlaps None when not measured: a fixed setting, or no skeleton-driven field).
+    """
+    setting = config.flow.skinning_weights
+    out = {"setting": setting, "mode": "current" if setting == "auto" else setting}
+    out.update(source_overlap=None, target_overlap=None)
+    if setting != "auto" or not config.flow.skinning:
+        return out
+    src, tgt = self_overlap(source_vertices, source_faces), self_overlap(target_vertices, target_faces)
+    out.update(source_overlap=src, target_overlap=tgt)
+    if tgt - src > AUTO_OVERLAP:
+        out["mode"] = "start"
+    return out

@@ -36,16 +36,22 @@ class TrainingError(NcflowError):
     """The optimisation failed (a non-finite loss); nothing is written."""
 
 
-def init_params(key, config, skeleton: Skeleton, pose: Pose | None = None) -> Params:
-    """Flow field (skeleton-driven when ``flow.skinning``, starting at ``pose``, default the rest pose)
-    and GSO-Net, initialised from ``key``.
+def init_params(key, config, skeleton: Skeleton, pose: Pose | None = None, weight_mode: str = "current") -> Params:
+    """Flow field (skeleton-driven when ``flow.skinning``, starting at ``pose``, default the rest pose,
+    its bone weights by ``weight_mode``) and GSO-Net, initialised from ``key``.
     """
     kf, kg = jax.random.split(key)
     f = config.flow
     field = make_flow_field(kf, width=f.width, depth=f.depth, div_free=f.div_free, dtype=DTYPE)
     if f.skinning:
         field = SkinnedField(
-            field, skeleton, pose=pose, width=skinning_width(config, skeleton), interp=config.interp, dtype=DTYPE
+            field,
+            skeleton,
+            pose=pose,
+            width=skinning_width(config, skeleton),
+            interp=config.interp,
+            dtype=DTYPE,
+            weight_mode=weight_mode,
         )
     return Params(field, GSONet(kg, width=f.gso_width, depth=f.gso_depth, dtype=DTYPE))
 
@@ -113,18 +119,20 @@ def train(
     progress: Progress,
     n_centroids: int,
     initial_pose: Pose | None = None,
+    weight_mode: str = "current",
 ):
     """Run every stage; returns ``(params, pose, lam, phase_weights, history, steps_done, rollbacks)``.
 
     ``initial_pose`` (from :mod:`ncflow.match.pose_search`) starts the skeleton-driven field and the
-    per-step pose fit; default the rest pose.
+    per-step pose fit; default the rest pose. ``weight_mode`` is the skeleton-driven field's
+    (:class:`~ncflow.flow.SkinnedField`; the matcher's choice, ``Problem.skinning_weights``).
 
     Raises:
         TrainingError: a non-finite loss or non-finite trained parameters.
     """
     cfg = config
     k_init, k_train = key
-    params = init_params(k_init, cfg, arrays.skeleton, initial_pose)
+    params = init_params(k_init, cfg, arrays.skeleton, initial_pose, weight_mode)
     pose = rest_pose(arrays.skeleton, DTYPE) if initial_pose is None else initial_pose
     optimizer = build_optimizer(cfg)
     opt_state = optimizer.init(eqx.filter(params, eqx.is_inexact_array))
