@@ -176,6 +176,10 @@ def test_cli_match_writes_contract_and_is_reproducible(tmp_path, pair, capsys):
     assert metrics["seed"] == 1 and metrics["config"]["flow"]["width"] == 16
     assert sum(p["steps"] for p in metrics["phases"]) == 12
     assert {p["metric"] for p in metrics["phases"]} == {"varifold"}
+    # neither surface passes through itself: the skeleton-driven field keeps the flow of space
+    weights = metrics["skinning_weights"]
+    assert weights["setting"] == "auto" and weights["mode"] == "current"
+    assert weights["source_overlap"] == 0.0 and weights["target_overlap"] == 0.0
     for f in ["p2p_src_to_tgt.txt", "p2p_tgt_to_src.txt"]:
         assert (outs["a"] / f).read_bytes() == (outs["b"] / f).read_bytes()
     assert (outs["a"] / "deformed_source.ply").read_bytes() == (outs["b"] / "deformed_source.ply").read_bytes()
