@@ -68,6 +68,10 @@ DEFAULT_VOLUME_FACTOR = 1.25
 DEFAULT_SPLIT_PASSES = 3
 """Number of bisection passes (the release runs 2 with an additional edge-ratio criterion)."""
 
+MIN_THICKNESS = 1e-3
+"""Surfaces whose thinnest principal extent is below this share of the widest are refused before
+fTetWild (which keeps no tet of them, and sometimes crashes on them)."""
+
 # the six edges of a tet as pairs of local vertex slots
 _TET_EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]])
 
@@ -135,6 +139,13 @@ def _validate_surface(vertices: np.ndarray, faces: np.ndarray) -> None:
     spread = np.linalg.svd(used - used.mean(axis=0), compute_uv=False)
     if spread[0] == 0.0 or spread[-1] <= 1e-9 * spread[0]:
         raise InputError("tetrahedralisation: the surface is flat (all vertices on one plane) and encloses no volume")
+    # it also crashes now and then on nearly flat ones (a slab 1e-4 thick: a segfault in one test run
+    # of twenty-odd); far thinner than the envelope, fTetWild would keep no tet of them anyway
+    if spread[-1] <= MIN_THICKNESS * spread[0]:
+        raise InputError(
+            "tetrahedralisation: no tetrahedra — the surface is nearly flat (thinner than "
+            f"{MIN_THICKNESS:.1%} of its width) and encloses no volume at this resolution"
+        )
 
 
 def tetrahedralize_surface(
