@@ -94,3 +94,14 @@ def test_auto_weights_take_the_start_when_only_the_target_passes_through_itself(
     assert skinning_weight_mode(paper, *apart, *through)["mode"] == "current"
     with pytest.raises(Exception, match="skinning_weights"):
         apply_overrides(cfg, ["flow.skinning_weights=local"])
+
+
+def test_a_strided_subset_of_the_faces_stands_for_them_all():
+    # the bound on the work of a mesh with far more faces than vertices (max_pairs): a strided
+    # tenth of the faces is tested instead of all of them
+    boxes = [([0, 0, 0], [1, 1, 1]), ([0.6, 0.3, 0.2], [1.6, 1.1, 0.9])]
+    v, f = _union(*(_box(lo, hi) for lo, hi in boxes))
+    full = self_overlap(v, f, max_vertices=10_000)
+    part = self_overlap(v, f, max_vertices=10_000, max_pairs=(f.shape[0] + 12) * f.shape[0] // 10)
+    assert part != full  # the subset path ran
+    assert part == pytest.approx(full, abs=0.05)

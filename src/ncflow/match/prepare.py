@@ -81,7 +81,14 @@ class Problem:
     pose_search: PoseSearchResult | None = None
     pose_search_seconds: float = 0.0
     placement_trials: tuple[dict, ...] = ()
-    skinning_weights: dict = dataclasses.field(default_factory=lambda: {"setting": "current", "mode": "current"})
+    skinning_weights: dict = dataclasses.field(
+        default_factory=lambda: {
+            "setting": "current",
+            "mode": "current",
+            "source_overlap": None,
+            "target_overlap": None,
+        }
+    )
 
 
 def skinning_width(config, skeleton: Skeleton) -> float:
@@ -206,6 +213,9 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Prob
     t0 = time.perf_counter()
     centroids, tissue_info = source_tissue(work, config, message)
     tissue_seconds = time.perf_counter() - t0
+    # the edge tables first: they name the file of a non-manifold mesh, which the overlap test would not
+    source_topology = mesh_topology(work.faces, work.vertices.shape[0], name=src.name)
+    target_topology = mesh_topology(tgt.faces, tgt.n_vertices, name=tgt.name)
     weights = skinning_weight_mode(config, work.vertices, work.faces, tgt.vertices, tgt.faces)
     if weights["mode"] == "start" and config.flow.skinning_weights == "auto":
         message(
@@ -222,8 +232,8 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Prob
         target_vertices=tgt_v,
         placement=placement,
         skeleton_normalized=skel_n,
-        source_topology=mesh_topology(work.faces, work.vertices.shape[0], name=src.name),
-        target_topology=mesh_topology(tgt.faces, tgt.n_vertices, name=tgt.name),
+        source_topology=source_topology,
+        target_topology=target_topology,
         bone_radii=skel_n.bone_radii(config.sampling.bone_radius),
         centroids=centroids,
         tissue_info=tissue_info,
