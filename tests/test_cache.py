@@ -55,8 +55,81 @@ def test_cache_can_be_moved(tmp_path):
     assert len(_files(target)) > 0 and _files(tmp_path / "cache") == []
 
 
+def test_the_tests_run_with_the_jax_settings_users_get():
+    import jax
+
+    from ncflow.cache import SHARE_SETTINGS, share_executables
+
+    assert all(os.environ.get(k) == v for k, v in SHARE_SETTINGS.items())
+    assert share_executables() and jax.config.jax_embedded_constants_max_bytes == 0
+
+
+@pytest.mark.parametrize("per_octave", [1, 2, 4])
+def test_bucket_is_the_smallest_allowed_size_not_below_n(per_octave):
+    from ncflow.cache import bucket
+
+    # the allowed sizes, brute force: multiples of 2^k / per_octave within each octave [2^k, 2^(k+1)]
+    allowed = sorted(
+        {m * (2**k // per_octave) for k in range(3, 20) for m in range(per_octave, 2 * per_octave + 1)} | {8}
+    )
+    for n in list(range(0, 600)) + [1023, 1024, 1025, 2232, 3162, 99_999]:
+        expected = min(a for a in allowed if a >= max(n, 8))
+        assert bucket(n, per_octave) == expected, n
+        assert bucket(n, per_octave) < max(n, 8) * (1 + 1 / per_octave) + 1e-9
+
+
 def test_jit_cache_setting_in_config():
     from ncflow.config import apply_overrides, preset
 
     assert preset("fast").jit_cache == "auto"
     assert apply_overrides(preset("fast"), ["jit_cache=none"]).jit_cache == "none"
+
+
+SHARED = textwrap.dedent(
+    """
+    import os, sys
+    import numpy as np
+    import ncflow  # first, as a user would: compiled programs take their arrays as arguments
+    from ncflow.cache import share_executables
+    from ncflow.config import apply_overrides, preset, scale_steps
+    from ncflow.geometry.mesh import Mesh
+    from ncflow.match import Matcher
+    from ncflow.skeleton import Skeleton
+    from ncflow.synthetic.shapes import bend, capsule
+
+    print("SHARED", share_executables())
+    folder = sys.argv[1]
+    sets = ["flow.width=8", "flow.depth=1", "flow.gso_width=4", "flow.gso_depth=1", "flow.n_times=3",
+            "sampling.bone_samples=5", "sampling.surface_edges=0", "weights.surface=0", "weights.tissue=0",
+            "compress=none", "placement=none", "pose_search=false", f"jit_cache={folder}"]
+    cfg = scale_steps(apply_overrides(preset("fast"), sets), 2)
+    # two characters of the same mesh size: other proportions, another middle joint, other bends (neither
+    # passing through itself, so both take the bone weights of the current place)
+    for length, joint, angle in ((3.0, 0.0, 40.0), (2.4, 0.35, 55.0)):
+        vs, fs = capsule(radius=0.4, length=length, n_around=8, n_along=8)
+        ends = length / 2 + 0.1
+        skel = Skeleton.from_arrays(np.array([[0, 0, -ends], [0, 0, joint], [0, 0, ends]]), np.array([-1, 0, 1]))
+        m = Matcher(Mesh(vs, fs, "source"), Mesh(bend(vs, angle), fs, "target"), skel, cfg, quiet=True)
+        m.run()
+        print("MODE", m.problem.skinning_weights["mode"])
+        print("STEPS", sorted(f for f in os.listdir(folder) if f.startswith("jit_step-")))
+    """
+)
+
+
+def test_a_second_character_of_the_same_size_reuses_the_compiled_training_step(tmp_path):
+    """Two sources of the same mesh size with different proportions, skeletons (so bone-weight widths)
+    and targets: the second match finds its training step in the compilation cache (issue 17's
+    "pairs of similar size share compiled executables"), because the arrays are arguments of the
+    programs (:func:`ncflow.cache.share_executables`), not constants written into them.
+    """
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("NCFLOW_", "JAX_"))}
+    env["NCFLOW_CACHE_DIR"] = str(tmp_path / "cache")
+    out = subprocess.run(
+        [sys.executable, "-c", SHARED, str(tmp_path / "jit")], env=env, capture_output=True, text=True, timeout=600
+    )
+    assert out.returncode == 0, out.stderr[-3000:]
+    lines = out.stdout.splitlines()
+    assert "SHARED True" in lines and lines.count("MODE current") == 2
+    first, second = [line for line in lines if line.startswith("STEPS ")]
+    assert first != "STEPS []" and second == first

@@ -1,5 +1,6 @@
 """Skeleton-driven flow field (ncflow.flow.skinning): blended rigid bone velocities + a Flow-Net."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -245,3 +246,22 @@ def test_skinning_products_ask_for_full_float32_precision(dot_precisions):
     found = dot_precisions(str(jax.make_jaxpr(jax.value_and_grad(speed))(rest_pose(skel, jnp.float32))))
     skinning = [p for p in found if p != "None"]
     assert len(skinning) >= 4 and all(p == "(Precision.HIGHEST, Precision.HIGHEST)" for p in skinning), found
+
+
+def test_the_compiled_field_does_not_depend_on_the_skeleton_positions_or_the_width():
+    """Two skeletons of one shape with other joint positions and bone-weight widths lower to the same
+    program (their arrays are arguments: :func:`ncflow.cache.share_executables`, set for the tests
+    as for users), so a second character reuses the first one's compiled executables; another
+    tree of joints is another program (the comparison can fail).
+    """
+    moved = POSITIONS + np.array([[0.0, 0.0, 0.0], [0.1, 0, 0.2], [0, 0.3, 0.1], [0, 0.1, 0], [0.2, 0, 0]])
+    x = jnp.asarray(np.random.default_rng(0).normal(size=(16, 3)), jnp.float32)
+
+    def program(positions, width, parents=PARENTS):
+        skel = Skeleton.from_arrays(positions, parents)
+        field = SkinnedField(_residual(), skel, _pose(skel), width=width, dtype=jnp.float32)
+        return eqx.filter_jit(lambda f, p: f(p, 0.3)).lower(field, x).as_text()
+
+    first = program(POSITIONS, 0.05)
+    assert program(moved, 0.08) == first
+    assert program(POSITIONS, 0.05, np.array([-1, 0, 1, 2, 0])) != first

@@ -167,6 +167,32 @@ def test_sampling_is_keyed_and_without_replacement():
     np.testing.assert_array_equal(np.asarray(jitted), np.asarray(a))
 
 
+def test_sample_tissue_of_padded_centroids_draws_real_rows_only():
+    """Centroids padded to a size bucket: the draw takes the real rows of the same permutation, so it
+    equals the unpadded draw when nothing is padded, never returns a padding row and never one twice.
+    """
+    rng = np.random.default_rng(0)
+    real = rng.normal(size=(300, 3)) + 5.0  # padding rows are zeros: far from every real row
+    padded = jnp.asarray(np.vstack([real, np.zeros((212, 3))]))
+    valid = jnp.asarray(np.arange(512) < 300)
+    key = jax.random.key(4)
+    unpadded = sample_tissue(key, jnp.asarray(real), 256)
+    np.testing.assert_array_equal(
+        np.asarray(sample_tissue(key, jnp.asarray(real), 256, jnp.ones(300, bool))), np.asarray(unpadded)
+    )
+    drawn = np.asarray(jax.jit(sample_tissue, static_argnums=2)(key, padded, 256, valid))
+    rows = {tuple(r) for r in real.tolist()}
+    assert drawn.shape == (256, 3) and all(tuple(r) in rows for r in drawn.tolist())
+    assert len({tuple(r) for r in drawn.tolist()}) == 256
+    # over many keys every real row is drawn about equally often (uniform without replacement)
+    counts = np.zeros(300)
+    index = {tuple(r): i for i, r in enumerate(real.tolist())}
+    for k in range(40):
+        for r in np.asarray(sample_tissue(jax.random.key(k), padded, 150, valid)).tolist():
+            counts[index[tuple(r)]] += 1
+    assert counts.sum() == 40 * 150 and 5 <= counts.min() and counts.max() <= 35  # mean 20
+
+
 def test_soft_tissue_pipeline_on_sphere(monkeypatch, tmp_path):
     monkeypatch.chdir(tmp_path)
     v, f = sphere(2)

@@ -6,6 +6,10 @@ A small public surface; everything else lives in the submodules (``ncflow.measur
 
 __version__ = "0.1.0"
 
+from ncflow.cache import share_executables
+
+share_executables()  # before anything imports JAX: compiled programs take their arrays as arguments
+
 from ncflow import match
 from ncflow.config import Config, load_config, preset
 from ncflow.errors import InputError, NcflowError

@@ -9,6 +9,14 @@ its compilation (the ``jit`` executables of the first run are read back from dis
 (the default: ``<cache folder>/jax``, unless JAX's own ``jax_compilation_cache_dir`` is already
 set, which is then respected), ``none`` (off) or a folder. The environment variable wins over the
 setting, so a cluster job can turn it off without editing configurations.
+
+A cached executable is found by the text of the program it compiles. JAX writes the arrays a
+jitted function closes over (the source, the skeleton, the tissue centroids) into that text by
+default, so every pair had its own programs. :func:`share_executables` makes them arguments of
+the program instead (JAX's ``jax_use_simplified_jaxpr_constants``, with no size limit), and the
+matcher pads the arrays whose length varies between pairs to a few sizes (:func:`bucket`): pairs
+whose arrays fall in the same buckets (the same source with another target, two MANO hands, two
+scans of similar size) then share every compiled program.
 """
 
 from __future__ import annotations
@@ -41,6 +49,39 @@ def compilation_cache_dir(setting: str = "auto") -> Path | None:
             return Path(jax.config.jax_compilation_cache_dir)
         return cache_root() / "jax"
     return Path(choice).expanduser()
+
+
+def bucket(n: int, per_octave: int = 4, smallest: int = 8) -> int:
+    """The size an array of ``n`` rows is padded to so that similar sizes share compiled programs:
+    the smallest multiple of 2^⌊log2 n⌋ / ``per_octave`` that is ≥ n (``per_octave`` sizes per
+    doubling, at most 1/``per_octave`` of padding; 1: the next power of two), at least ``smallest``.
+    """
+    n = max(int(n), int(smallest), 1)
+    step = max((1 << (n.bit_length() - 1)) // int(per_octave), 1)
+    return -(-n // step) * step
+
+
+SHARE_SETTINGS = {"JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS": "true", "JAX_EMBEDDED_CONSTANTS_MAX_BYTES": "0"}
+"""JAX's settings (environment variables) that make closed-over arrays arguments of the executable."""
+
+
+def share_executables() -> bool:
+    """Let one compiled program serve every array value of the same shape (see the module
+    docstring): closed-over arrays become arguments of the executable. JAX reads the setting when
+    it is imported, so ``import ncflow`` calls this first; it sets the environment variables of
+    :data:`SHARE_SETTINGS` that are not set already (a user's own choice wins) and returns whether
+    they apply — False when JAX was imported before ncflow (programs are then compiled per pair,
+    as before; nothing else changes).
+    """
+    import sys
+
+    if "jax" in sys.modules:
+        import jax
+
+        return bool(jax.config.values.get("jax_use_simplified_jaxpr_constants", False))
+    for name, value in SHARE_SETTINGS.items():
+        os.environ.setdefault(name, value)
+    return os.environ["JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS"].lower() in ("1", "true", "yes", "on")
 
 
 def configure_compilation_cache(setting: str = "auto") -> Path | None:

@@ -51,7 +51,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, Int, PRNGKeyArray
+from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from ncflow.cache import cache_root
 from ncflow.errors import InputError
@@ -354,17 +354,25 @@ def soft_tissue(
 # per-step sampling
 
 
-def sample_tissue(key: PRNGKeyArray, centroids: Float[Array, "K 3"], n: int) -> Float[Array, "n 3"]:
+def sample_tissue(
+    key: PRNGKeyArray, centroids: Float[Array, "K 3"], n: int, valid: Bool[Array, " K"] | None = None
+) -> Float[Array, "n 3"]:
     """Draw ``n`` of the K centroids uniformly **without replacement** (a random permutation prefix).
 
     Keyed and deterministic given ``key``; jit-compatible (``n`` static). The rows keep the dtype of
     ``centroids``. When ``n`` ≥ K all K centroids are returned, in random order (shape (K, 3)).
+    ``valid`` (K,) marks the real rows of centroids padded to a size bucket
+    (:func:`ncflow.match.buckets.bucket`): the draw is the first ``n`` real rows of the same
+    permutation (so with every row real it is the draw without ``valid``); ``n`` must not exceed
+    the number of real rows.
     """
     centroids = jnp.asarray(centroids)
     k = centroids.shape[0]
     n = min(int(n), k)
-    idx = jax.random.permutation(key, k)[:n]
-    return centroids[idx]
+    perm = jax.random.permutation(key, k)
+    if valid is not None:
+        perm = perm[jnp.argsort(~jnp.asarray(valid)[perm], stable=True)]  # real rows first, order kept
+    return centroids[perm[:n]]
 
 
 def _tool_versions() -> str:

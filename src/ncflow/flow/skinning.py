@@ -104,7 +104,7 @@ def _segment_distance(x: Float[Array, "N 3"], a: Float[Array, "B 3"], b: Float[A
 
 
 def skinning_weights(
-    x: Float[Array, "N 3"], heads: Float[Array, "B 3"], tails: Float[Array, "B 3"], width: float
+    x: Float[Array, "N 3"], heads: Float[Array, "B 3"], tails: Float[Array, "B 3"], width: float | Float[Array, ""]
 ) -> Float[Array, "N B"]:
     """w_b(x) = softmax_b(−d_b(x)/width), d_b the distance of x to the segment heads[b]–tails[b]."""
     return jax.nn.softmax(-_segment_distance(x, heads, tails) / width, axis=-1)
@@ -117,7 +117,9 @@ class SkinnedField(eqx.Module):
         residual: the Flow-Net R_θ (any ``field(x, t)``).
         skeleton: the source skeleton in the coordinates of the points (normalised, for training).
         pose: initial pose (default: the rest pose, so the field starts as the residual alone).
-        width: τ of the weights, in the units of the points.
+        width: τ of the weights, in the units of the points; held as a 0-d array (not a static
+            number) so that one compiled program serves every skeleton, and never trained (the
+            optimiser's ``"frozen"`` group, :func:`ncflow.match.train.parameter_labels`).
         interp: "sclerp" (default) or "slerp", as :func:`ncflow.skeleton.interpolate_world`.
         weight_mode: "current" (default) or "start" — where the bone weights are taken; see the
             module docstring. Only the integrator (:func:`ncflow.flow.integrate`, through
@@ -126,8 +128,8 @@ class SkinnedField(eqx.Module):
 
     residual: eqx.Module
     pose: Pose
+    width: Float[Array, ""]
     skeleton: Skeleton = eqx.field(static=True)
-    width: float = eqx.field(static=True)
     interp: str = eqx.field(static=True, default="sclerp")
     weight_mode: str = eqx.field(static=True, default="current")
 
@@ -148,7 +150,7 @@ class SkinnedField(eqx.Module):
         self.residual = residual
         self.skeleton = skeleton
         self.pose = rest_pose(skeleton, dtype) if pose is None else pose
-        self.width = float(width)
+        self.width = jnp.asarray(width, dtype)
         self.interp = interp
         self.weight_mode = weight_mode
 
@@ -180,11 +182,14 @@ class SkinnedField(eqx.Module):
         if self.weight_mode == "start":
             x, t = (x if x0 is None else x0), jnp.zeros((), self.pose.rotations.dtype)
         heads, tails, *_ = self._motion(t)
-        return skinning_weights(x, heads, tails, self.width)
+        return skinning_weights(x, heads, tails, self._width())
+
+    def _width(self) -> Float[Array, ""]:
+        return jax.lax.stop_gradient(self.width)
 
     def skeleton_velocity(self, x: Float[Array, "N 3"], t: Float[Array, ""] | float) -> Float[Array, "N 3"]:
         """The articulated part Σ_b w_b ξ_b(x) at points x (N, 3) and time t (x taken as the start too)."""
-        return _blend(x, self._motion(t), self.width)
+        return _blend(x, self._motion(t), self._width())
 
     def __call__(self, x: Float[Array, "N 3"], t: Float[Array, ""] | float) -> Float[Array, "N 3"]:
         """Velocities at points x (N, 3) and time t (scalar), x taken as the start too."""
@@ -200,8 +205,8 @@ class SkinnedField(eqx.Module):
         motion = jax.vmap(self._motion)(times)
         fixed = None
         if self.weight_mode == "start" and x0 is not None:
-            fixed = skinning_weights(jnp.asarray(x0), motion[0][0], motion[1][0], self.width)  # bones at t_0 = 0
-        return _GridSkinnedField(self.residual, motion, self.width, n_times, fixed)
+            fixed = skinning_weights(jnp.asarray(x0), motion[0][0], motion[1][0], self._width())  # bones at t_0 = 0
+        return _GridSkinnedField(self.residual, motion, self._width(), n_times, fixed)
 
 
 WEIGHT_MODES = ("current", "start")
@@ -225,7 +230,7 @@ class _GridSkinnedField(eqx.Module):
 
     residual: eqx.Module
     motion: tuple
-    width: float = eqx.field(static=True)
+    width: Float[Array, ""]
     n_times: int = eqx.field(static=True)
     fixed: Array | None = None
 

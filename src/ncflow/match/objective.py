@@ -29,8 +29,9 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, Int, PRNGKeyArray
+from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
+from ncflow.cache import bucket
 from ncflow.flow import GSONet, integrate, time_grid
 from ncflow.geometry.topology import Topology
 from ncflow.losses import (
@@ -106,25 +107,36 @@ class Settings:
 
 @dataclasses.dataclass(frozen=True)
 class Arrays:
-    """The problem's constant arrays in the training dtype (closed over by the jitted step)."""
+    """The problem's constant arrays in the training dtype (closed over by the jitted step, as
+    arguments of its executable: :func:`ncflow.cache.share_executables`).
+
+    The tissue centroids are padded to the next power of two (:func:`ncflow.cache.bucket`; their
+    count varies from one tetrahedralisation to the next), ``centroid_valid`` marking the real rows.
+    """
 
     source: Float[Array, "V 3"]
     faces: np.ndarray
     topology: Topology
     edges: Array
     centroids: Float[Array, "K 3"]
+    centroid_valid: Bool[Array, " K"]
     skeleton: Skeleton
     radii: np.ndarray
 
     @classmethod
     def from_problem(cls, problem: Problem) -> Arrays:
         """Training-dtype copies of a :class:`~ncflow.match.prepare.Problem`'s arrays (the working source)."""
+        k = problem.centroids.shape[0]
+        size = bucket(k, per_octave=1) if k else 0
+        centroids = np.zeros((size, 3))
+        centroids[:k] = problem.centroids
         return cls(
             source=jnp.asarray(problem.working.vertices, DTYPE),
             faces=np.asarray(problem.working.faces),
             topology=problem.source_topology,
             edges=jnp.asarray(problem.source_topology.edges),
-            centroids=jnp.asarray(problem.centroids, DTYPE),
+            centroids=jnp.asarray(centroids, DTYPE),
+            centroid_valid=jnp.asarray(np.arange(size) < k),
             skeleton=problem.skeleton_normalized,
             radii=problem.bone_radii,
         )
@@ -175,7 +187,9 @@ def objective(
     nb = bones.shape[0] * bones.shape[1]
     parts = [src, bones.reshape(-1, 3)]
     if s.n_tissue:
-        parts.append(tissue_stencil(sample_tissue(kt, arrays.centroids, s.n_tissue), s.tissue_delta))
+        parts.append(
+            tissue_stencil(sample_tissue(kt, arrays.centroids, s.n_tissue, arrays.centroid_valid), s.tissue_delta)
+        )
     xs, _ = integrate(params.flow, jnp.concatenate(parts), s.n_times)
     surf = xs[:, :nv]
     flowed_bones = xs[:, nv : nv + nb].reshape(s.n_times, *bones.shape)

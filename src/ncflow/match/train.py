@@ -57,12 +57,15 @@ def init_params(key, config, skeleton: Skeleton, pose: Pose | None = None, weigh
 
 
 def parameter_labels(params: Params):
-    """``"pose"`` on the leaves of a skeleton-driven field's pose, ``"net"`` on every other leaf."""
+    """``"pose"`` on the leaves of a skeleton-driven field's pose, ``"frozen"`` on its bone-weight width
+    τ (an array only so that compiled programs do not depend on it), ``"net"`` on every other leaf.
+    """
     labels = jax.tree_util.tree_map(lambda _: "net", params)
     if isinstance(params.flow, SkinnedField):
         labels = eqx.tree_at(
             lambda p: p.flow.pose, labels, replace_fn=lambda sub: jax.tree_util.tree_map(lambda _: "pose", sub)
         )
+        labels = eqx.tree_at(lambda p: p.flow.width, labels, "frozen")
     return labels
 
 
@@ -77,7 +80,11 @@ def build_optimizer(config) -> optax.GradientTransformation:
             return make(learning_rate, weight_decay=config.weight_decay, clip_norm=None)
 
         clip = optax.clip_by_global_norm(config.clip_norm) if config.clip_norm is not None else optax.identity()
-        groups = {"net": group(), "pose": optax.chain(group(), optax.scale(config.flow.pose_lr_scale))}
+        groups = {
+            "net": group(),
+            "pose": optax.chain(group(), optax.scale(config.flow.pose_lr_scale)),
+            "frozen": optax.set_to_zero(),
+        }
         return optax.chain(clip, optax.multi_transform(groups, parameter_labels))
 
     return optax.inject_hyperparams(factory, hyperparam_dtype=DTYPE)(learning_rate=1.0)
