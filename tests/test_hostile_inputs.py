@@ -377,7 +377,7 @@ def test_gltf_short_external_buffer_does_not_leak_its_size(model_dir):
     with pytest.raises(InputError) as ei:
         load_gltf_skin(path)
     msg = one_line(ei, path, "shorter than its byteLength")
-    assert "17" not in msg
+    assert "17" not in msg.replace(str(path), "")  # the temporary folder's name may hold a 17 (pytest-17)
 
 
 def test_trimesh_resources_are_confined_to_the_mesh_folder(model_dir, monkeypatch):
