@@ -14,9 +14,11 @@ A cached executable is found by the text of the program it compiles. JAX writes 
 jitted function closes over (the source, the skeleton, the tissue centroids) into that text by
 default, so every pair had its own programs. :func:`share_executables` makes them arguments of
 the program instead (JAX's ``jax_use_simplified_jaxpr_constants``, with no size limit), and the
-matcher pads the arrays whose length varies between pairs to a few sizes (:func:`bucket`): pairs
-whose arrays fall in the same buckets (the same source with another target, two MANO hands, two
-scans of similar size) then share every compiled program.
+matcher pads the tissue centroids, whose count varies with each tetrahedralisation, to a power of
+two (:func:`bucket`). Pairs whose sources have the same numbers of vertices and edges and whose
+skeletons have the same joint tree (the same character in another pose, two MANO hands) then share
+every compiled program of the training, the pose search and the outputs; the source's own arrays
+are not padded, so sources of other sizes still compile their own.
 """
 
 from __future__ import annotations

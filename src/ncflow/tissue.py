@@ -362,7 +362,7 @@ def sample_tissue(
     Keyed and deterministic given ``key``; jit-compatible (``n`` static). The rows keep the dtype of
     ``centroids``. When ``n`` ≥ K all K centroids are returned, in random order (shape (K, 3)).
     ``valid`` (K,) marks the real rows of centroids padded to a size bucket
-    (:func:`ncflow.match.buckets.bucket`): the draw is the first ``n`` real rows of the same
+    (:func:`ncflow.cache.bucket`): the draw is the first ``n`` real rows of the same
     permutation (so with every row real it is the draw without ``valid``); ``n`` must not exceed
     the number of real rows.
     """
