@@ -246,9 +246,7 @@ def _exchange_step(skeleton, beams: Pose, n_real: int, limbs, sigma, score, y, m
         jnp.concatenate([beams.rotations, jnp.asarray(swapped, beams.rotations.dtype)]),
         jnp.concatenate([beams.translation, beams.translation]),
     )
-    s = np.array(score(cand, sigma, y), np.float64)
-    s[n_real:beam] = np.inf
-    s[beam:][~distinct] = np.inf
+    s = np.array(score(cand, np.concatenate([np.arange(beam) < n_real, distinct]), sigma, y), np.float64)
     n_new = n_real + int(distinct.sum())
     keep = np.argsort(s, kind="stable")[: min(beam, n_new)]
     keep = np.concatenate([keep, np.repeat(keep[:1], beam - keep.size)])
@@ -345,44 +343,62 @@ def search_poses(
 
     src_coarse, src_fine = source_diracs(n_search, 2), source_diracs(n_refine, 4)
 
-    def distance(pose: Pose, sigma, src, y):
+    def distance(pose: Pose, sigma, src, y, yy):
         x, w = src
         xs = _skinned(skeleton, w, x, pose)
-        yy = varifold_inner(y, y, sigma, 0.5)
         return (varifold_inner(xs, xs, sigma, 0.5) - 2.0 * varifold_inner(xs, y, sigma, 0.5) + yy) / yy
 
     rest = rest_pose(skeleton, dt)
-    # lax.map, not vmap: a batch of blocked kernel sums runs ~6× faster one after the other on CPU
-    score_fine = jax.jit(lambda poses, s, y: jax.lax.map(lambda p: distance(p, s, src_fine, y), poses))
-    score_coarse = jax.jit(
-        lambda poses, s, y: jax.lax.map(lambda p: distance(p, s, src_coarse, y), poses), static_argnums=1
-    )
+
+    def scores(poses: Pose, active, sigma, src, y):
+        """Each pose's distance, +inf without computing it where ``active`` is False (padding rows:
+        the shapes are fixed so that one program serves every joint and placement). lax.map, not
+        vmap: a batch of blocked kernel sums runs ~6× faster one after the other on CPU, and the
+        cond then skips the padding's work.
+        """
+        inf, yy = jnp.asarray(jnp.inf, dt), varifold_inner(y, y, sigma, 0.5)
+        return jax.lax.map(
+            lambda pa: jax.lax.cond(pa[1], lambda p: distance(p, sigma, src, y, yy), lambda p: inf, pa[0]),
+            (poses, active),
+        )
+
+    score_fine = jax.jit(lambda poses, active, s, y: scores(poses, active, s, src_fine, y))
+    score_coarse = jax.jit(lambda poses, active, s, y: scores(poses, active, s, src_coarse, y), static_argnums=2)
 
     @functools.partial(jax.jit, static_argnums=6)
-    def expand(rotations, translations, hyp, hyp_child, j, c, sigma, y):
-        """Every beam pose × every local rotation pair of joint j and its child c, and their scores."""
+    def expand(rotations, translations, hyp, hyp_child, j, c, sigma, y, n_real, n_h):
+        """Every beam pose × every local rotation pair of joint j and its child c, and their scores
+        (+inf, not computed, past the ``n_real`` real beam rows and the ``n_h`` real hypotheses).
+        """
         nb, nh = rotations.shape[0], hyp.shape[0]
         rot = jnp.repeat(rotations, nh, axis=0)
         rot = rot.at[:, j].set(quat_mul(rot[:, j], jnp.tile(hyp, (nb, 1))))
         rot = rot.at[:, c].set(quat_mul(rot[:, c], jnp.tile(hyp_child, (nb, 1))))
         cand = Pose(rot, jnp.repeat(translations, nh, axis=0))
-        return cand, jax.lax.map(lambda p: distance(p, sigma, src_coarse, y), cand)
+        active = jnp.repeat(jnp.arange(nb) < n_real, nh) & jnp.tile(jnp.arange(nh) < n_h, nb)
+        return cand, scores(cand, active, sigma, src_coarse, y)
 
     opt = optax.adam(0.01)
 
-    def refine(pose: Pose, sigma, y):
+    def refine(pose: Pose, sigma, y, yy):
         state = opt.init(pose)
 
         def body(carry, _):
             p, st = carry
-            g = jax.grad(lambda q: distance(q, sigma, src_fine, y))(p)
+            g = jax.grad(lambda q: distance(q, sigma, src_fine, y, yy))(p)
             u, st = opt.update(g, st, p)
             p = optax.apply_updates(p, u)
             return (Pose(p.rotations / jnp.linalg.norm(p.rotations, axis=-1, keepdims=True), p.translation), st), None
 
         return jax.lax.scan(body, (pose, state), None, length=refine_steps)[0][0]
 
-    refine_all = jax.jit(lambda poses, s, y: jax.lax.map(lambda p: refine(p, s, y), poses))
+    # rows not ``active`` (copies of the rest pose filling the fixed shape) are returned as they are
+    refine_all = jax.jit(
+        lambda poses, active, s, y: jax.lax.map(
+            lambda pa: jax.lax.cond(pa[1], lambda p: refine(p, s, y, varifold_inner(y, y, s, 0.5)), lambda p: p, pa[0]),
+            (poses, active),
+        )
+    )
     has_child = np.bincount(np.asarray(skeleton.parents)[1:], minlength=skeleton.n_joints) > 0
     searched = [
         (int(j), *chain_hypotheses(skeleton, int(j)))
@@ -417,10 +433,8 @@ def search_poses(
                     n_scored += n_new
                 continue
             j, n_h, hyp, hyp_child, c = step
-            cand, s = expand(beams.rotations, beams.translation, hyp, hyp_child, j, c, sigma, y_coarse)
-            s = np.array(s, np.float64).reshape(beam, n_hyp)
-            s[n_real:], s[:, n_h:] = np.inf, np.inf
-            s = s.ravel()
+            cand, s = expand(beams.rotations, beams.translation, hyp, hyp_child, j, c, sigma, y_coarse, n_real, n_h)
+            s = np.array(s, np.float64)
             n_scored += n_real * n_h
             keep = np.argsort(s, kind="stable")[: min(beam, n_real * n_h)]
             keep = np.concatenate([keep, np.repeat(keep[:1], beam - keep.size)])  # pad with the best
@@ -445,8 +459,7 @@ def search_poses(
         n_scored = 1 + sum(f[2] for f in found)
         pooled, valid = pool(found)
         # the searches often agree: refine at most ``refined`` distinct poses, best scored first
-        first = np.array(score_fine(pooled, float(sigmas_refine[0]), y_fine), np.float64)
-        first[~valid] = np.inf
+        first = np.array(score_fine(pooled, valid, float(sigmas_refine[0]), y_fine), np.float64)
         joints = np.asarray(joint_positions(jax.vmap(lambda p: forward_kinematics(skeleton, p))(pooled)))
         picked = []
         for i in np.argsort(first[:-1], kind="stable"):
@@ -454,18 +467,21 @@ def search_poses(
                 if all(np.abs(joints[i] - joints[k]).max() > distinct for k in picked):
                     picked.append(int(i))
         rows = np.array(picked + [pooled.rotations.shape[0] - 1] * (n_refined + 1 - len(picked)))
+        real = np.arange(rows.size) < len(picked)
+        real[-1] = True  # the rest pose, refined too; the copies before it fill the fixed shape
         candidates = Pose(pooled.rotations[rows], pooled.translation[rows])
         for sigma in sigmas_refine:
-            candidates = refine_all(candidates, float(sigma), y_fine)
-        final = np.full(valid.size, np.inf)  # scored in the pooled shape: one compiled scorer
-        padded = Pose(
+            candidates = refine_all(candidates, real, float(sigma), y_fine)
+        padded = Pose(  # scored in the pooled shape: one compiled scorer
             jnp.concatenate([candidates.rotations, pooled.rotations[rows.size :]]),
             jnp.concatenate([candidates.translation, pooled.translation[rows.size :]]),
         )
-        final[: rows.size] = np.array(score_fine(padded, float(sigmas_refine[-1]), y_fine), np.float64)[: rows.size]
-        final[len(picked) : rows.size - 1] = np.inf  # copies of the rest pose
+        only = np.zeros(valid.size, bool)
+        scored = np.concatenate([real, only[rows.size :]])
+        final = np.array(score_fine(padded, scored, float(sigmas_refine[-1]), y_fine), np.float64)
         rests = Pose(jnp.repeat(rest.rotations[None], valid.size, 0), jnp.repeat(rest.translation[None], valid.size, 0))
-        rest_score = float(np.asarray(score_fine(rests, float(sigmas_refine[-1]), y_fine))[0])
+        only[0] = True
+        rest_score = float(np.asarray(score_fine(rests, only, float(sigmas_refine[-1]), y_fine))[0])
         candidates = padded
         best = int(np.argmin(final))
         if final[best] >= rest_score:
