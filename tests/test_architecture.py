@@ -37,6 +37,7 @@ LAYERS = {
     "geometry": 0,
     "io": 1,
     "cache": 1,
+    "buckets": 1,
     "measures": 2,
     "skeleton": 2,
     "flow": 2,

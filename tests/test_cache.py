@@ -66,7 +66,7 @@ def test_the_tests_run_with_the_jax_settings_users_get():
 
 @pytest.mark.parametrize("per_octave", [1, 2, 4])
 def test_bucket_is_the_smallest_allowed_size_not_below_n(per_octave):
-    from ncflow.cache import bucket
+    from ncflow.buckets import bucket
 
     # the allowed sizes, brute force: multiples of 2^k / per_octave within each octave [2^k, 2^(k+1)]
     allowed = sorted(
@@ -103,10 +103,12 @@ SHARED = textwrap.dedent(
             "sampling.bone_samples=5", "sampling.surface_edges=0", "weights.surface=0", "weights.tissue=0",
             "compress=none", "placement=none", "pose_search=false", f"jit_cache={folder}"]
     cfg = scale_steps(apply_overrides(preset("fast"), sets), 2)
-    # two characters of the same mesh size: other proportions, another middle joint, other bends (neither
-    # passing through itself, so both take the bone weights of the current place)
-    for length, joint, angle in ((3.0, 0.0, 40.0), (2.4, 0.35, 55.0)):
-        vs, fs = capsule(radius=0.4, length=length, n_around=8, n_along=8)
+    # two characters of other mesh sizes in the same size buckets (86 and 83 vertices: 88 padded; 252 and
+    # 243 edges: 256; 168 and 162 faces: 176), other proportions, another middle joint, other bends
+    # (neither passing through itself, so both take the bone weights of the current place)
+    for length, joint, angle, around, along in ((3.0, 0.0, 40.0, 7, 10), (2.4, 0.35, 55.0, 9, 7)):
+        vs, fs = capsule(radius=0.4, length=length, n_around=around, n_along=along)
+        print("VERTICES", len(vs))
         ends = length / 2 + 0.1
         skel = Skeleton.from_arrays(np.array([[0, 0, -ends], [0, 0, joint], [0, 0, ends]]), np.array([-1, 0, 1]))
         m = Matcher(Mesh(vs, fs, "source"), Mesh(bend(vs, angle), fs, "target"), skel, cfg, quiet=True)
@@ -117,11 +119,12 @@ SHARED = textwrap.dedent(
 )
 
 
-def test_a_second_character_of_the_same_size_reuses_the_compiled_training_step(tmp_path):
-    """Two sources of the same mesh size with different proportions, skeletons (so bone-weight widths)
-    and targets: the second match finds its training step in the compilation cache (issue 17's
-    "pairs of similar size share compiled executables"), because the arrays are arguments of the
-    programs (:func:`ncflow.cache.share_executables`), not constants written into them.
+def test_a_second_character_of_similar_size_reuses_the_compiled_training_step(tmp_path):
+    """Two sources of other mesh sizes in the same size buckets, with different proportions, skeletons
+    (so bone-weight widths) and targets: the second match finds its training step in the compilation
+    cache (issue 17's "pairs of similar size share compiled executables"), because the arrays are
+    arguments of the programs (:func:`ncflow.cache.share_executables`), not constants written into
+    them, and the source is padded to its size bucket (:class:`ncflow.match.objective.Arrays`).
     """
     env = {k: v for k, v in os.environ.items() if not k.startswith(("NCFLOW_", "JAX_"))}
     env["NCFLOW_CACHE_DIR"] = str(tmp_path / "cache")
@@ -131,5 +134,6 @@ def test_a_second_character_of_the_same_size_reuses_the_compiled_training_step(t
     assert out.returncode == 0, out.stderr[-3000:]
     lines = out.stdout.splitlines()
     assert "SHARED True" in lines and lines.count("MODE current") == 2
+    assert [line for line in lines if line.startswith("VERTICES ")] == ["VERTICES 86", "VERTICES 83"]
     first, second = [line for line in lines if line.startswith("STEPS ")]
     assert first != "STEPS []" and second == first

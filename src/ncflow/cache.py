@@ -53,16 +53,6 @@ def compilation_cache_dir(setting: str = "auto") -> Path | None:
     return Path(choice).expanduser()
 
 
-def bucket(n: int, per_octave: int = 4, smallest: int = 8) -> int:
-    """The size an array of ``n`` rows is padded to so that similar sizes share compiled programs:
-    the smallest multiple of 2^⌊log2 n⌋ / ``per_octave`` that is ≥ n (``per_octave`` sizes per
-    doubling, at most 1/``per_octave`` of padding; 1: the next power of two), at least ``smallest``.
-    """
-    n = max(int(n), int(smallest), 1)
-    step = max((1 << (n.bit_length() - 1)) // int(per_octave), 1)
-    return -(-n // step) * step
-
-
 SHARE_SETTINGS = {"JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS": "true", "JAX_EMBEDDED_CONSTANTS_MAX_BYTES": "0"}
 """JAX's settings (environment variables) that make closed-over arrays arguments of the executable."""
 

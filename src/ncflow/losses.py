@@ -40,8 +40,9 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray
 
+from ncflow.buckets import draw_rows
 from ncflow.flow.integrate import time_grid
 from ncflow.measures.normal_cycles import safe_normalize
 
@@ -151,11 +152,14 @@ def surface_distortion(
     return arap_energy(jnp.asarray(rest, states.dtype), edges, later, rotations.astype(states.dtype))
 
 
-def sample_edges(key: PRNGKeyArray, edges: Int[ArrayLike, "E 2"], n: int) -> Int[Array, "n 2"]:
-    """N of the E edges drawn uniformly without replacement (all E in random order if n ≥ E)."""
+def sample_edges(
+    key: PRNGKeyArray, edges: Int[ArrayLike, "E 2"], n: int, valid: Bool[ArrayLike, " E"] | None = None
+) -> Int[Array, "n 2"]:
+    """N of the E edges drawn uniformly without replacement (all E in random order if n ≥ E); with
+    ``valid`` (edges padded to a size bucket) only real edges (:func:`ncflow.buckets.draw_rows`).
+    """
     edges = jnp.asarray(edges)
-    idx = jax.random.permutation(key, edges.shape[0])[: min(int(n), edges.shape[0])]
-    return edges[idx]
+    return edges[draw_rows(key, edges.shape[0], n, valid)]
 
 
 def edge_points(

@@ -48,11 +48,11 @@ import time
 from pathlib import Path
 from typing import NamedTuple
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
+from ncflow.buckets import draw_rows
 from ncflow.cache import cache_root
 from ncflow.errors import InputError
 from ncflow.geometry.topology import close_boundary
@@ -362,17 +362,12 @@ def sample_tissue(
     Keyed and deterministic given ``key``; jit-compatible (``n`` static). The rows keep the dtype of
     ``centroids``. When ``n`` ≥ K all K centroids are returned, in random order (shape (K, 3)).
     ``valid`` (K,) marks the real rows of centroids padded to a size bucket
-    (:func:`ncflow.cache.bucket`): the draw is the first ``n`` real rows of the same
+    (:func:`ncflow.buckets.bucket`): the draw is the first ``n`` real rows of the same
     permutation (so with every row real it is the draw without ``valid``); ``n`` must not exceed
     the number of real rows.
     """
     centroids = jnp.asarray(centroids)
-    k = centroids.shape[0]
-    n = min(int(n), k)
-    perm = jax.random.permutation(key, k)
-    if valid is not None:
-        perm = perm[jnp.argsort(~jnp.asarray(valid)[perm], stable=True)]  # real rows first, order kept
-    return centroids[perm[:n]]
+    return centroids[draw_rows(key, centroids.shape[0], n, valid)]
 
 
 def _tool_versions() -> str:

@@ -102,6 +102,35 @@ def mesh_topology(faces: Int[np.ndarray, "F 3"], n_vertices: int | None = None, 
     return Topology(faces, edges, edge_faces, edge_signs, boundary, bverts, neighbors)
 
 
+def pad_topology(topology: Topology, n_faces: int, n_edges: int, n_boundary: int | None = None) -> Topology:
+    """The tables with rows appended that represent nothing, to ``n_faces`` faces, ``n_edges`` edges
+    and ``n_boundary`` boundary vertices (default: as many as there are; a mesh without boundary
+    keeps none): faces (0, 0, 0) and edges (0, 0) are degenerate (zero area and length, so zero
+    weight in every measure), padded edges have no incident faces and are not boundary edges, and
+    padded boundary vertices (vertex 0) have no neighbours. Shapes padded to a size bucket
+    (:mod:`ncflow.buckets`) let meshes of similar size share compiled programs.
+    """
+    t = topology
+    n_boundary = t.boundary_vertices.size if n_boundary is None or not t.has_boundary else n_boundary
+    extra_f, extra_e = n_faces - t.faces.shape[0], n_edges - t.n_edges
+    extra_b = n_boundary - t.boundary_vertices.size
+    if min(extra_f, extra_e, extra_b) < 0:
+        raise ValueError("pad_topology pads; it cannot remove rows")
+
+    def pad(a, extra, value):
+        return np.concatenate([a, np.full((extra, *a.shape[1:]), value, a.dtype)])
+
+    return Topology(
+        faces=pad(t.faces, extra_f, 0),
+        edges=pad(t.edges, extra_e, 0),
+        edge_faces=pad(t.edge_faces, extra_e, -1),
+        edge_signs=pad(t.edge_signs, extra_e, 0),
+        boundary_edges=pad(t.boundary_edges, extra_e, False),
+        boundary_vertices=pad(t.boundary_vertices, extra_b, 0),
+        boundary_neighbors=pad(t.boundary_neighbors, extra_b, -1),
+    )
+
+
 def close_boundary(
     vertices: Float[np.ndarray, "V 3"], faces: Int[np.ndarray, "F 3"]
 ) -> tuple[Float[np.ndarray, "W 3"], Int[np.ndarray, "G 3"]]:

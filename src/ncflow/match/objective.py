@@ -31,9 +31,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
-from ncflow.cache import bucket
+from ncflow.buckets import MESH_PER_OCTAVE, bucket
 from ncflow.flow import GSONet, integrate, time_grid
-from ncflow.geometry.topology import Topology
+from ncflow.geometry.topology import Topology, pad_topology
 from ncflow.losses import (
     bone_constraints,
     edge_points,
@@ -65,7 +65,7 @@ class Settings:
     metrics: tuple[str, ...]  # the data terms one compiled step chooses among (by a traced index)
     n_bone_samples: int
     n_tissue: int
-    n_edges: int
+    n_edges: int  # surface edges drawn per step; 0: all edges
     tissue_delta: float
     n_times: int
     interp: str
@@ -82,14 +82,15 @@ class Settings:
     @classmethod
     def from_config(cls, config, metrics: str | tuple[str, ...], n_edges_total: int, n_centroids: int) -> Settings:
         """Settings of ``config`` for the data terms ``metrics`` (one name or several: one step
-        compiled for all stages); ``sampling.surface_edges`` ≤ 0 means all edges.
+        compiled for all stages); ``sampling.surface_edges`` ≤ 0, or at least the source's
+        ``n_edges_total`` real edges, means all edges (``n_edges`` 0).
         """
         c, s = config.constraints, config.sampling
         return cls(
             metrics=(metrics,) if isinstance(metrics, str) else tuple(metrics),
             n_bone_samples=s.bone_samples,
             n_tissue=min(s.tissue_samples, n_centroids),
-            n_edges=s.surface_edges if s.surface_edges > 0 else n_edges_total,
+            n_edges=s.surface_edges if 0 < s.surface_edges < n_edges_total else 0,
             tissue_delta=s.tissue_delta,
             n_times=config.flow.n_times,
             interp=config.interp,
@@ -110,31 +111,52 @@ class Arrays:
     """The problem's constant arrays in the training dtype (closed over by the jitted step, as
     arguments of its executable: :func:`ncflow.cache.share_executables`).
 
-    The tissue centroids are padded to the next power of two (:func:`ncflow.cache.bucket`; their
-    count varies from one tetrahedralisation to the next), ``centroid_valid`` marking the real rows.
+    Padded to size buckets (:mod:`ncflow.buckets`) so that sources of similar size share the
+    compiled step: the working source's vertices (copies of vertex 0 appended; the flow moves each
+    point on its own), its faces, edges and boundary vertices
+    (:func:`~ncflow.geometry.topology.pad_topology`: rows of zero weight in every measure) to
+    :data:`ncflow.buckets.MESH_PER_OCTAVE` sizes per doubling, and the tissue centroids (whose count varies from
+    one tetrahedralisation to the next) to the next power of two. ``n_vertices`` and ``n_edges``
+    count the real rows, ``edge_valid`` and ``centroid_valid`` mark them.
     """
 
     source: Float[Array, "V 3"]
-    faces: np.ndarray
     topology: Topology
-    edges: Array
+    edges: Int[Array, "E 2"]
+    edge_valid: Bool[Array, " E"]
+    n_vertices: int
+    n_edges: int
     centroids: Float[Array, "K 3"]
     centroid_valid: Bool[Array, " K"]
     skeleton: Skeleton
     radii: np.ndarray
 
     @classmethod
-    def from_problem(cls, problem: Problem) -> Arrays:
-        """Training-dtype copies of a :class:`~ncflow.match.prepare.Problem`'s arrays (the working source)."""
+    def from_problem(cls, problem: Problem, pad: bool = True) -> Arrays:
+        """Training-dtype copies of a :class:`~ncflow.match.prepare.Problem`'s arrays (the working
+        source), padded to size buckets unless ``pad`` is False.
+        """
         k = problem.centroids.shape[0]
         size = bucket(k, per_octave=1) if k else 0
         centroids = np.zeros((size, 3))
         centroids[:k] = problem.centroids
+        topo, v = problem.source_topology, np.asarray(problem.working.vertices)
+        nv, ne = v.shape[0], topo.n_edges
+        if pad:
+
+            def grow(n):
+                return bucket(n, per_octave=MESH_PER_OCTAVE)
+
+            n_boundary = grow(topo.boundary_vertices.size) if topo.has_boundary else 0
+            topo = pad_topology(topo, grow(topo.faces.shape[0]), grow(ne), n_boundary)
+            v = np.concatenate([v, np.repeat(v[:1], grow(nv) - nv, axis=0)])
         return cls(
-            source=jnp.asarray(problem.working.vertices, DTYPE),
-            faces=np.asarray(problem.working.faces),
-            topology=problem.source_topology,
-            edges=jnp.asarray(problem.source_topology.edges),
+            source=jnp.asarray(v, DTYPE),
+            topology=topo,
+            edges=jnp.asarray(topo.edges),
+            edge_valid=jnp.asarray(np.arange(topo.n_edges) < ne),
+            n_vertices=nv,
+            n_edges=ne,
             centroids=jnp.asarray(centroids, DTYPE),
             centroid_valid=jnp.asarray(np.arange(size) < k),
             skeleton=problem.skeleton_normalized,
@@ -195,10 +217,15 @@ def objective(
     flowed_bones = xs[:, nv : nv + nb].reshape(s.n_times, *bones.shape)
     data = _data_term(s.metrics, which, surf[-1], arrays, targets, sigma, sigma_normal, yy)
     # surface ARAP on random edges, rotations from the GSO-Net at both ends
-    e = sample_edges(ke, arrays.edges, s.n_edges)
+    # with all edges (n_edges 0) the padding's degenerate edges come too: zero energy, so the mean over
+    # the drawn rows is rescaled to the mean over the real ones (the count read from the array, not
+    # written into the program)
+    n_drawn = s.n_edges or arrays.edges.shape[0]
+    e = sample_edges(ke, arrays.edges, n_drawn, arrays.edge_valid)
     rest, local = edge_points(src, e)
     ends = jnp.concatenate([surf[:, e[:, 0]], surf[:, e[:, 1]]], axis=1)  # (T, 2n, 3): the flowed edge points
-    surf_loss = surface_distortion(params.gso, rest, local, ends)
+    n_real = jnp.minimum(n_drawn, jnp.sum(arrays.edge_valid)).astype(DTYPE)
+    surf_loss = surface_distortion(params.gso, rest, local, ends) * (n_drawn / n_real)
     soft = tissue_distortion(xs[:, nv + nb :], s.tissue_delta) if s.n_tissue else jnp.zeros((), DTYPE)
     fw = constraint_fit_weights(
         s.n_times, bones.shape[0], DTYPE, lam[0] * phase_weights[0], lam[1] * phase_weights[1], s.trajectory_weight

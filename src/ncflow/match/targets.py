@@ -1,6 +1,8 @@
 """Target measures per length scale: the target's Varifold / Normal Cycle, compressed once per
 (metric, σ, σ_n) when larger than ``config.compress`` (Algorithm 2; DESIGN.md "Compression"), with
-its self-energy ⟨Y, Y⟩ that normalises the data term.
+its self-energy ⟨Y, Y⟩ that normalises the data term. A target left uncompressed is padded to a
+size bucket with rows of zero weight (:func:`ncflow.buckets.pad_rows`), so targets of similar size
+share the compiled step.
 """
 
 from __future__ import annotations
@@ -10,6 +12,7 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
+from ncflow.buckets import MESH_PER_OCTAVE, bucket, pad_rows
 from ncflow.errors import InputError
 from ncflow.match.prepare import DTYPE, Problem
 from ncflow.match.stages import Stage
@@ -42,6 +45,8 @@ def target_measures(
             message(f"compressing the target ({st.metric}, sigma={st.sigma:g}) to {config.compress} points ...")
             y, rep = metric.compress(y, config.compress, st.sigma, st.phase_config.sigma_normal, config.seed)
             report = rep.to_dict()
+        else:  # compressed targets all have ``compress`` rows; the others are padded to a size bucket
+            y = pad_rows(y, bucket(y.size, per_octave=MESH_PER_OCTAVE))
         yy = float(metric.inner(y, y, st.sigma, st.phase_config.sigma_normal))
         if not np.isfinite(yy) or yy <= 0:
             raise InputError("the target has no measurable surface (zero self-energy)", problem.target.name)

@@ -145,7 +145,7 @@ def train(
     opt_state = optimizer.init(eqx.filter(params, eqx.is_inexact_array))
     lam = jnp.zeros((2, arrays.skeleton.n_bones), DTYPE)
     metrics = tuple(dict.fromkeys(st.metric for st in stages))
-    settings = Settings.from_config(cfg, metrics, int(arrays.edges.shape[0]), n_centroids)
+    settings = Settings.from_config(cfg, metrics, arrays.n_edges, n_centroids)
     step = make_step(arrays, settings, optimizer, cfg.constraints.multiplier_lr)
     # the other metrics' slots hold a target of the same shape (compression makes one per σ): unread
     placeholders = {st.metric: targets[(st.metric, st.sigma, st.phase_config.sigma_normal)][0] for st in stages}

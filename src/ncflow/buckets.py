@@ -1,0 +1,58 @@
+"""Size buckets: arrays padded to a few sizes so that inputs of similar size share compiled
+programs (issue 17).
+
+A compiled program is specific to the shapes of its arrays. The arrays whose size varies from one
+input to the next — the working source's vertices, edges and faces, the tissue centroids, the
+points a trained flow moves — are padded to :func:`bucket` sizes, with rows that represent nothing
+(:func:`ncflow.geometry.topology.pad_topology`: degenerate edges and faces, of zero length and
+area) or that random draws step around (:func:`draw_rows`). The cached executables of
+:mod:`ncflow.cache` then serve every input whose sizes fall in the same buckets.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Int, PRNGKeyArray, PyTree
+
+MESH_PER_OCTAVE = 8
+"""Size buckets per doubling for the arrays of a mesh (vertices, edges, faces, measures, flowed
+points): at most 12.5 % of padding."""
+
+
+def bucket(n: int, per_octave: int = 4, smallest: int = 8) -> int:
+    """The size an array of ``n`` rows is padded to so that similar sizes share compiled programs:
+    the smallest multiple of 2^⌊log2 n⌋ / ``per_octave`` that is ≥ n (``per_octave`` sizes per
+    doubling, at most 1/``per_octave`` of padding; 1: the next power of two), at least ``smallest``.
+    """
+    n = max(int(n), int(smallest), 1)
+    step = max((1 << (n.bit_length() - 1)) // int(per_octave), 1)
+    return -(-n // step) * step
+
+
+def draw_rows(key: PRNGKeyArray, size: int, n: int, valid: Bool[Array, " size"] | None = None) -> Int[Array, " m"]:
+    """Indices of ``n`` of ``size`` rows drawn uniformly without replacement (a random permutation's
+    prefix; all rows in random order when ``n`` ≥ ``size``: m = min(n, size)). ``valid`` marks the
+    real rows of an array padded to a bucket: the draw is the first real rows of the same
+    permutation, so with every row real it equals the draw without ``valid``; rows past the real
+    ones are padding (drawn last). Jit-compatible (``size`` and ``n`` static).
+    """
+    perm = jax.random.permutation(key, size)
+    if valid is not None:
+        perm = perm[jnp.argsort(~jnp.asarray(valid)[perm], stable=True)]  # real rows first, order kept
+    return perm[: min(int(n), size)]
+
+
+def pad_rows(tree: PyTree, size: int) -> PyTree:
+    """Every array leaf of ``tree`` (a measure: centres, normals, weights, all of N rows) with zero
+    rows appended up to ``size`` rows; a weighted measure's zero-weight rows add nothing to any
+    kernel sum, so its inner products are unchanged.
+    """
+
+    def pad(a):
+        extra = size - a.shape[0]
+        if extra < 0:
+            raise ValueError(f"pad_rows pads; {a.shape[0]} rows do not fit in {size}")
+        return jnp.concatenate([a, jnp.zeros((extra, *a.shape[1:]), a.dtype)]) if extra else a
+
+    return jax.tree_util.tree_map(pad, tree)
