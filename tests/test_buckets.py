@@ -98,15 +98,14 @@ def test_padded_training_objective_equals_the_unpadded_one():
     import equinox as eqx
 
     from ncflow.geometry.mesh import Mesh
-    from ncflow.match.objective import Arrays, Settings, objective
+    from ncflow.match.objective import Arrays, Settings
     from ncflow.match.prepare import DTYPE, prepare
     from ncflow.match.stages import build_stages
     from ncflow.match.targets import target_measures
     from ncflow.match.train import init_params
     from ncflow.skeleton import Skeleton
-    from ncflow.skeleton.kinematics import rest_pose
     from ncflow.synthetic.shapes import bend
-    from test_objective import _config
+    from test_objective import _config, stage_objective
 
     vs, fs = capsule(radius=0.4, length=3.0, n_around=7, n_along=10)
     skel = Skeleton.from_arrays(np.array([[0, 0, -1.6], [0, 0, 0.0], [0, 0, 1.6]]), np.array([-1, 0, 1]))
@@ -124,20 +123,7 @@ def test_padded_training_objective_equals_the_unpadded_one():
         assert s.n_edges == 0  # all edges
 
         def loss(p, arrays=arrays, s=s):
-            return objective(
-                p,
-                rest_pose(arrays.skeleton, DTYPE),
-                (target,),
-                0,
-                jnp.asarray(st.sigma, DTYPE),
-                jnp.asarray(0.5, DTYPE),
-                jnp.asarray(yy, DTYPE),
-                jnp.asarray([1.0, 1.0], DTYPE),
-                jnp.ones((2, 2), DTYPE),
-                jax.random.key(5),
-                arrays=arrays,
-                settings=s,
-            )
+            return stage_objective(p, arrays, s, st, target, yy, jnp.ones((2, 2), DTYPE), jax.random.key(5))
 
         (total, aux), grads = eqx.filter_value_and_grad(loss, has_aux=True)(params)
         results.append((float(total), float(aux["surface"]), float(aux["data"]), grads))
