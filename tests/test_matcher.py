@@ -268,3 +268,32 @@ def test_phase_constraint_weight(tmp_path, pair):
     bones = r.metrics["constraints"]["bones"]
     assert all(b["multiplier_endpoint"] == 0.0 and b["multiplier_trajectory"] == 0.0 for b in bones)
     assert r.metrics["config"]["phases"][0]["constraint_weight"] == 0.0
+
+
+def test_output_motion_is_the_flow_of_the_source_and_of_fresh_bone_samples(pair, mdmm_result):
+    """The output phase flows the source and the bone samples in one program: the same states as
+    flowing each on its own (:func:`ncflow.flow.flow_points`), the samples those of the key."""
+    import jax
+    import jax.numpy as jnp
+
+    from ncflow.flow import flow_points
+    from ncflow.match.result import FINAL_BONE_SAMPLES, output_motion
+    from ncflow.skeleton import sample_bones
+
+    src, _, skel, *_ = pair
+    r = mdmm_result
+    points = 0.3 * src.vertices[:101]  # any points: the field is defined everywhere (an odd count: padded)
+    times = np.array([0.0, 0.3, 0.5, 1.0])
+    key = jax.random.key(3)
+    frames, bones, states = output_motion(r.field, points, times, r.n_times, skel, None, key)
+    expected = sample_bones(skel, key, FINAL_BONE_SAMPLES, dtype=np.float32).points
+    np.testing.assert_allclose(np.asarray(bones), np.asarray(expected), atol=1e-6)  # compiled apart: rounding
+    assert frames.shape == (4, 101, 3) and states.shape == (r.n_times, skel.n_bones, FINAL_BONE_SAMPLES, 3)
+    alone = np.asarray(
+        flow_points(r.field, jnp.asarray(points, jnp.float32), r.n_times, times=jnp.asarray(times, jnp.float32))
+    )
+    np.testing.assert_allclose(frames, alone, atol=1e-5)
+    np.testing.assert_allclose(frames[0], points, atol=1e-6)
+    grid = np.asarray(flow_points(r.field, bones.reshape(-1, 3), r.n_times))
+    np.testing.assert_allclose(np.asarray(states), grid.reshape(states.shape), atol=1e-5)
+    assert np.abs(np.asarray(states)[-1] - np.asarray(bones)).max() > 1e-3  # the samples did move

@@ -180,8 +180,9 @@ def _refined_candidates(
     """
     x = surface_diracs(source_vertices, source_faces, n_samples, seed)
     y = surface_diracs(target_vertices, target_faces, n_samples, seed + 1)
-    pivot = _centroid(y)
-    shift = _centroid(x) - pivot
+    centroid = jax.jit(_centroid)
+    pivot = centroid(y)
+    shift = centroid(x) - pivot
     rotations = jnp.asarray(candidate_rotations(x, y), jnp.float32)
 
     def score(rotation, translation, sigma):
@@ -219,7 +220,7 @@ def _refined_candidates(
     final = None
     for sigma in sigmas:
         w, d, final = refine_all(start, float(sigma), w, d)
-    mats = np.asarray(jax.vmap(_rotvec_matrix)(w), np.float64) @ np.asarray(start, np.float64)
+    mats = np.asarray(jax.jit(jax.vmap(_rotvec_matrix))(w), np.float64) @ np.asarray(start, np.float64)
     pivot_np, shift_np = np.asarray(pivot, np.float64), np.asarray(shift, np.float64)
     # R(y − p) + p + shift + d
     trans = pivot_np + shift_np + np.asarray(d, np.float64) - np.einsum("kij,j->ki", mats, pivot_np)

@@ -334,12 +334,12 @@ def search_poses(
     """
     dt = jnp.float32
     bones = np.asarray(skeleton.bones)
-    pos = jnp.asarray(skeleton.positions, dt)
+    pos = np.asarray(skeleton.positions, dt)
+    weights = jax.jit(skinning_weights)  # one program, not one per operation and size
 
     def source_diracs(n, offset):
         x = surface_diracs(source_vertices, source_faces, n, seed + offset)
-        w = skinning_weights(x.centers, pos[bones[:, 0]], pos[bones[:, 1]], skinning_width).astype(dt)
-        return x, w
+        return x, weights(x.centers, pos[bones[:, 0]], pos[bones[:, 1]], skinning_width).astype(dt)
 
     src_coarse, src_fine = source_diracs(n_search, 2), source_diracs(n_refine, 4)
 
@@ -450,6 +450,14 @@ def search_poses(
         )
         return pooled, np.concatenate([np.arange(beam) < n for _, n, _ in found] + [[True]])
 
+    pose_joints = jax.jit(jax.vmap(lambda p: joint_positions(forward_kinematics(skeleton, p))))
+
+    @jax.jit
+    def unit_swing(pose: Pose) -> Pose:
+        """The score cannot see the twist of one-child joints (the field moves by the swing alone): dropped."""
+        pose = swing_only(skeleton, pose)
+        return Pose(pose.rotations / jnp.linalg.norm(pose.rotations, axis=-1, keepdims=True), pose.translation)
+
     n_refined = min(refined, len(searches) * beam)
     results = []
     for target_vertices in target_candidates:
@@ -460,7 +468,7 @@ def search_poses(
         pooled, valid = pool(found)
         # the searches often agree: refine at most ``refined`` distinct poses, best scored first
         first = np.array(score_fine(pooled, valid, float(sigmas_refine[0]), y_fine), np.float64)
-        joints = np.asarray(joint_positions(jax.vmap(lambda p: forward_kinematics(skeleton, p))(pooled)))
+        joints = np.asarray(pose_joints(pooled))
         picked = []
         for i in np.argsort(first[:-1], kind="stable"):
             if np.isfinite(first[i]) and len(picked) < n_refined:
@@ -487,8 +495,6 @@ def search_poses(
         if final[best] >= rest_score:
             results.append(PoseSearchResult(rest, rest_score, rest_score, n_scored))
             continue
-        # the score cannot see the twist of one-child joints (the field moves by the swing alone): drop it
-        pose = swing_only(skeleton, Pose(candidates.rotations[best], candidates.translation[best]))
-        rot = pose.rotations / jnp.linalg.norm(pose.rotations, axis=-1, keepdims=True)
-        results.append(PoseSearchResult(Pose(rot, pose.translation), float(final[best]), rest_score, n_scored))
+        pose = unit_swing(Pose(candidates.rotations[best], candidates.translation[best]))
+        results.append(PoseSearchResult(pose, float(final[best]), rest_score, n_scored))
     return results

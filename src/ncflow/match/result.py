@@ -21,8 +21,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from ncflow import __version__
+from ncflow.buckets import MESH_PER_OCTAVE, bucket
 from ncflow.config import config_to_dict
-from ncflow.flow import flow_points, time_grid
+from ncflow.flow import flow_points, hermite, integrate, time_grid
 from ncflow.geometry.mesh import Mesh
 from ncflow.geometry.normalize import Normalization
 from ncflow.losses import bone_constraints
@@ -111,34 +112,50 @@ class MatchResult:
 FINAL_BONE_SAMPLES = 200  # per bone, for the reported g_k (fresh samples, so an estimate of the integral)
 
 
-def final_pose(arrays, config, params, pose: Pose, lam, cw, key) -> tuple[Pose, np.ndarray, np.ndarray]:
-    """The output pose and its (g^EP, g^TR): the training pose refined on FINAL_BONE_SAMPLES fresh
-    samples per bone with the final multiplier weights (the per-step fit sees only a few samples).
-    One compiled program (run op by op it dispatched ~250 small executables: 20 s on a hand).
+def output_motion(field, source: np.ndarray, frame_times: np.ndarray, n_times: int, skeleton, radii, key):
+    """The trained flow of everything the outputs need, in one compiled program: the source's
+    frames (Q, V, 3) at ``frame_times`` (cubic Hermite between grid states, exact at grid times) and
+    FINAL_BONE_SAMPLES fresh samples per bone (B, n, 3) with their grid states (T, B, n, 3). The
+    source is padded to a size bucket (:func:`ncflow.buckets.bucket`, copies of its first vertex;
+    each trajectory is independent) so that sources of similar size share the program; the bone
+    samples ride along with the source (flowing them separately compiled the flow twice).
+    """
+
+    @eqx.filter_jit
+    def run(field, points, times, key):
+        bones = sample_bones(skeleton, key, FINAL_BONE_SAMPLES, radius=radii, dtype=DTYPE).points
+        xs, vs = integrate(field, jnp.concatenate([points, bones.reshape(-1, 3)]), n_times)
+        m = points.shape[0]
+        return hermite(xs[:, :m], vs[:, :m], times), bones, xs[:, m:].reshape(n_times, *bones.shape)
+
+    n = source.shape[0]
+    padded = np.concatenate([source, np.repeat(source[:1], bucket(n, per_octave=MESH_PER_OCTAVE) - n, axis=0)])
+    frames, bones, states = run(field, np.asarray(padded, DTYPE), np.asarray(frame_times, DTYPE), key)
+    return np.asarray(frames[:, :n], np.float64), bones, states
+
+
+def final_pose(arrays, config, pose: Pose, bones, states, lam, cw, frame_times: np.ndarray):
+    """The output pose, its (g^EP, g^TR) and the joint positions (Q, J, 3) at ``frame_times``: the
+    training pose refined on the fresh bone samples ``bones`` (B, n, 3) flowed to ``states``
+    (T, B, n, 3) (:func:`output_motion`; the per-step fit sees only a few samples) with the final
+    multiplier weights, then interpolated from rest. One compiled program, independent of the
+    source's size (run op by op it dispatched ~250 small executables: 20 s on a hand).
     """
     c = config.constraints
     n_times = config.flow.n_times
-    skeleton, radii, interp = arrays.skeleton, arrays.radii, config.interp
+    skeleton, interp = arrays.skeleton, config.interp
 
     @eqx.filter_jit
-    def run(field, pose, lam, cw, key):
-        bones = sample_bones(skeleton, key, FINAL_BONE_SAMPLES, radius=radii, dtype=DTYPE).points
-        xs = flow_points(field, bones.reshape(-1, 3), n_times).reshape(n_times, *bones.shape)
+    def run(pose, bones, xs, lam, cw, frame_times):
         times = time_grid(n_times, DTYPE)
         fw = constraint_fit_weights(n_times, bones.shape[0], DTYPE, lam[0] * cw[0], lam[1] * cw[1], c.trajectory_weight)
         pose = fit_pose(skeleton, pose, bones, xs, times, interp, iterations=3, weights=fw)
-        ref = rigid_reference(skeleton, pose, bones, times, interp)
-        g_ep, g_tr = bone_constraints(xs, ref)
-        return pose, g_ep, g_tr
+        g_ep, g_tr = bone_constraints(xs, rigid_reference(skeleton, pose, bones, times, interp))
+        joints = jax.vmap(lambda t: interpolate_joints(skeleton, pose, t, interp))(frame_times)
+        return pose, g_ep, g_tr, joints
 
-    pose, g_ep, g_tr = run(params.flow, pose, lam, cw, key)
-    return pose, np.asarray(g_ep, np.float64), np.asarray(g_tr, np.float64)
-
-
-def joint_frames(skeleton: Skeleton, pose: Pose, times: np.ndarray, interp: str) -> np.ndarray:
-    """(K, J, 3) joint positions at ``times`` (K,) between rest and ``pose``, in one compiled call."""
-    run = jax.jit(jax.vmap(lambda p, t: interpolate_joints(skeleton, p, t, interp), in_axes=(None, 0)))
-    return np.asarray(run(pose, jnp.asarray(times, pose.rotations.dtype)), np.float64)
+    pose, g_ep, g_tr, joints = run(pose, bones, states, lam, cw, np.asarray(frame_times, DTYPE))
+    return pose, np.asarray(g_ep, np.float64), np.asarray(g_tr, np.float64), np.asarray(joints, np.float64)
 
 
 def _versions() -> dict:
@@ -168,16 +185,14 @@ def build_result(problem, arrays, targets, config, params, pose: Pose, lam, cw, 
     source, target, skeleton = problem.source, problem.target, problem.skeleton
     src_v = problem.source_vertices
     frame_times = np.linspace(0.0, 1.0, cfg.frames)
-    src = jnp.asarray(src_v, DTYPE)
-    frames_n = np.asarray(
-        flow_points(params.flow, src, cfg.flow.n_times, times=jnp.asarray(frame_times, DTYPE)), np.float64
+    frames_n, bones, states = output_motion(
+        params.flow, src_v, frame_times, cfg.flow.n_times, arrays.skeleton, arrays.radii, key
     )
     frames_n[0] = src_v  # t = 0 is the source exactly
     deformed_n = frames_n[-1]  # Hermite output at a grid time is the grid state: the state at t = 1
-    if not (np.all(np.isfinite(frames_n)) and np.all(np.isfinite(deformed_n))):
+    if not np.all(np.isfinite(frames_n)):
         raise TrainingError("the trained flow produced non-finite positions")
-    pose, g_ep, g_tr = final_pose(arrays, cfg, params, pose, lam, cw, key)
-    joints = joint_frames(arrays.skeleton, pose, frame_times, cfg.interp)
+    pose, g_ep, g_tr, joints = final_pose(arrays, cfg, pose, bones, states, lam, cw, frame_times)
     maps = correspondence_maps(src_v, source.faces, deformed_n, problem.target_vertices, target.faces)
     pivot = src_v.mean(axis=0)
     frames_n = move_back(problem.placement, frames_n, frame_times, pivot)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -37,8 +38,8 @@ def target_measures(
         if key in targets:
             continue
         metric = get_metric(st.metric)
-        if st.metric not in full:
-            full[st.metric] = metric.represent(ty, problem.target_topology)
+        if st.metric not in full:  # jitted: one program, not one per operation
+            full[st.metric] = jax.jit(lambda v, m=metric: m.represent(v, problem.target_topology))(ty)
         y = full[st.metric]
         report = {"n": int(y.size), "m": int(y.size), "relative_error": 0.0, "seconds": 0.0}
         if config.compress and y.size > config.compress:
@@ -46,8 +47,8 @@ def target_measures(
             y, rep = metric.compress(y, config.compress, st.sigma, st.phase_config.sigma_normal, config.seed)
             report = rep.to_dict()
         else:  # compressed targets all have ``compress`` rows; the others are padded to a size bucket
-            y = pad_rows(y, bucket(y.size, per_octave=MESH_PER_OCTAVE))
-        yy = float(metric.inner(y, y, st.sigma, st.phase_config.sigma_normal))
+            y = jax.jit(pad_rows, static_argnums=1)(y, bucket(y.size, per_octave=MESH_PER_OCTAVE))
+        yy = float(jax.jit(lambda y, s, n, m=metric: m.inner(y, y, s, n))(y, st.sigma, st.phase_config.sigma_normal))
         if not np.isfinite(yy) or yy <= 0:
             raise InputError("the target has no measurable surface (zero self-energy)", problem.target.name)
         targets[key] = (y, yy, report)

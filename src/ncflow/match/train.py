@@ -139,7 +139,8 @@ def train(
     """
     cfg = config
     k_init, k_train = key
-    params = init_params(k_init, cfg, arrays.skeleton, initial_pose, weight_mode)
+    # jitted: one program, not one per layer shape and operation
+    params = eqx.filter_jit(lambda k, p: init_params(k, cfg, arrays.skeleton, p, weight_mode))(k_init, initial_pose)
     pose = rest_pose(arrays.skeleton, DTYPE) if initial_pose is None else initial_pose
     optimizer = build_optimizer(cfg)
     opt_state = optimizer.init(eqx.filter(params, eqx.is_inexact_array))
@@ -222,6 +223,6 @@ def train(
         )
     progress.close()
     leaves = jax.tree_util.tree_leaves(eqx.filter(params, eqx.is_inexact_array))
-    if not all(bool(jnp.all(jnp.isfinite(leaf))) for leaf in leaves):
+    if not all(np.all(np.isfinite(np.asarray(leaf))) for leaf in leaves):  # on the host: no program per leaf shape
         raise TrainingError("training produced non-finite parameters")
     return params, pose, lam, cw, history, done, guard.events
