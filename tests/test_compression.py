@@ -92,3 +92,16 @@ def test_leverage_scores_against_dense_formula():
     scores = leverage_scores(z, ridge=0.3, block_size=40, seed=0)  # one block: exact RLS
     k = np.exp(-((z[:, None] - z[None]) ** 2).sum(-1))
     np.testing.assert_allclose(scores, np.diag(k @ np.linalg.inv(k + 0.3 * np.eye(40))), rtol=1e-8)
+
+
+def test_blocked_leverage_scores_are_each_blocks_dense_scores():
+    """Blocks are runs of the seed's permutation (the last one shorter); each block's scores are its
+    own dense ridge leverage scores."""
+    z = np.random.default_rng(1).normal(size=(100, 3)) * 2.0
+    scores = leverage_scores(z, ridge=0.2, block_size=30, seed=4)
+    perm = np.random.default_rng(4).permutation(100)
+    for start in range(0, 100, 30):
+        idx = perm[start : start + 30]
+        k = np.exp(-((z[idx, None] - z[None, idx]) ** 2).sum(-1))
+        dense = np.diag(k @ np.linalg.inv(k + 0.2 * np.eye(idx.size)))
+        np.testing.assert_allclose(scores[idx], dense, rtol=1e-8)

@@ -74,7 +74,10 @@ def leverage_scores(
     """Blocked ridge leverage scores ℓ_i = [K_B (K_B + λI)⁻¹]_ii of exp(−‖z − z'‖²).
 
     Blocks are consecutive runs of a seeded random permutation, of ``block_size`` points
-    (default ⌊√N⌋ as in Algorithm 2).
+    (default ⌊√N⌋ as in Algorithm 2). ℓ_i = 1 − λ [(K_B + λI)⁻¹]_ii, and with K_B + λI = LLᵀ the
+    diagonal of the inverse is the column sums of squares of L⁻¹ (LAPACK's triangular inverse):
+    a third of the work of solving for the whole inverse (a 200k-vertex target's three compressions
+    spend most of their time here).
     """
     z = np.asarray(z, dtype=np.float64)
     n = z.shape[0]
@@ -87,10 +90,12 @@ def leverage_scores(
     for start in range(0, n, block_size):
         idx = perm[start : start + block_size]
         k = _gram(z[idx], z[idx])
-        inv_diag = np.diag(
-            scipy.linalg.cho_solve(scipy.linalg.cho_factor(k + ridge * np.eye(idx.size)), np.eye(idx.size))
-        )
-        scores[idx] = 1.0 - ridge * inv_diag  # diag(K (K + λI)^{-1}) = 1 − λ diag((K + λI)^{-1})
+        k[np.diag_indices_from(k)] += ridge
+        low = scipy.linalg.cholesky(k, lower=True, overwrite_a=True, check_finite=False)
+        inv, info = scipy.linalg.lapack.dtrtri(low, lower=1, overwrite_c=1)
+        if info != 0:
+            raise InputError(f"leverage scores: the kernel block is singular (LAPACK dtrtri info {info})")
+        scores[idx] = 1.0 - ridge * np.einsum("ki,ki->i", inv, inv)
     return np.clip(scores, 1e-12, None)
 
 
