@@ -115,16 +115,17 @@ SHARED = textwrap.dedent(
         m.run()
         print("MODE", m.problem.skinning_weights["mode"])
         print("STEPS", sorted(f for f in os.listdir(folder) if f.startswith("jit_step-")))
+        print("OUTPUTS", sorted(f for f in os.listdir(folder) if f.startswith("jit_output_")))
     """
 )
 
 
 def test_a_second_character_of_similar_size_reuses_the_compiled_training_step(tmp_path):
     """Two sources of other mesh sizes in the same size buckets, with different proportions, skeletons
-    (so bone-weight widths) and targets: the second match finds its training step in the compilation
-    cache (issue 17's "pairs of similar size share compiled executables"), because the arrays are
-    arguments of the programs (:func:`ncflow.cache.share_executables`), not constants written into
-    them, and the source is padded to its size bucket (:class:`ncflow.match.objective.Arrays`).
+    (so bone-weight widths) and targets: the second match finds its training step and its two output
+    programs in the compilation cache (issue 17's "pairs of similar size share compiled executables"),
+    because the arrays are arguments of the programs (:func:`ncflow.cache.share_executables`), not
+    constants written into them, and the source is padded to its size bucket (:class:`ncflow.match.objective.Arrays`).
     """
     env = {k: v for k, v in os.environ.items() if not k.startswith(("NCFLOW_", "JAX_"))}
     env["NCFLOW_CACHE_DIR"] = str(tmp_path / "cache")
@@ -137,3 +138,6 @@ def test_a_second_character_of_similar_size_reuses_the_compiled_training_step(tm
     assert [line for line in lines if line.startswith("VERTICES ")] == ["VERTICES 86", "VERTICES 83"]
     first, second = [line for line in lines if line.startswith("STEPS ")]
     assert first != "STEPS []" and second == first
+    # and the output phase's two programs (the flow of the padded source with the bone samples, the refit)
+    first, second = [line for line in lines if line.startswith("OUTPUTS ")]
+    assert first.count("jit_output_") == 2 and second == first

@@ -122,7 +122,7 @@ def output_motion(field, source: np.ndarray, frame_times: np.ndarray, n_times: i
     """
 
     @eqx.filter_jit
-    def run(field, points, times, key):
+    def output_flow(field, points, times, key):
         bones = sample_bones(skeleton, key, FINAL_BONE_SAMPLES, radius=radii, dtype=DTYPE).points
         xs, vs = integrate(field, jnp.concatenate([points, bones.reshape(-1, 3)]), n_times)
         m = points.shape[0]
@@ -130,7 +130,7 @@ def output_motion(field, source: np.ndarray, frame_times: np.ndarray, n_times: i
 
     n = source.shape[0]
     padded = np.concatenate([source, np.repeat(source[:1], bucket(n, per_octave=MESH_PER_OCTAVE) - n, axis=0)])
-    frames, bones, states = run(field, np.asarray(padded, DTYPE), np.asarray(frame_times, DTYPE), key)
+    frames, bones, states = output_flow(field, np.asarray(padded, DTYPE), np.asarray(frame_times, DTYPE), key)
     return np.asarray(frames[:, :n], np.float64), bones, states
 
 
@@ -146,7 +146,7 @@ def final_pose(arrays, config, pose: Pose, bones, states, lam, cw, frame_times: 
     skeleton, interp = arrays.skeleton, config.interp
 
     @eqx.filter_jit
-    def run(pose, bones, xs, lam, cw, frame_times):
+    def output_refit(pose, bones, xs, lam, cw, frame_times):
         times = time_grid(n_times, DTYPE)
         fw = constraint_fit_weights(n_times, bones.shape[0], DTYPE, lam[0] * cw[0], lam[1] * cw[1], c.trajectory_weight)
         pose = fit_pose(skeleton, pose, bones, xs, times, interp, iterations=3, weights=fw)
@@ -154,7 +154,7 @@ def final_pose(arrays, config, pose: Pose, bones, states, lam, cw, frame_times: 
         joints = jax.vmap(lambda t: interpolate_joints(skeleton, pose, t, interp))(frame_times)
         return pose, g_ep, g_tr, joints
 
-    pose, g_ep, g_tr, joints = run(pose, bones, states, lam, cw, np.asarray(frame_times, DTYPE))
+    pose, g_ep, g_tr, joints = output_refit(pose, bones, states, lam, cw, np.asarray(frame_times, DTYPE))
     return pose, np.asarray(g_ep, np.float64), np.asarray(g_tr, np.float64), np.asarray(joints, np.float64)
 
 
