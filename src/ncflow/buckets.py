@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Int, PRNGKeyArray, PyTree
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray, PyTree
 
 MESH_PER_OCTAVE = 8
 """Size buckets per doubling for the arrays of a mesh (vertices, edges, faces, measures, flowed
@@ -56,3 +56,16 @@ def pad_rows(tree: PyTree, size: int) -> PyTree:
         return jnp.concatenate([a, jnp.zeros((extra, *a.shape[1:]), a.dtype)]) if extra else a
 
     return jax.tree_util.tree_map(pad, tree)
+
+
+def pad_points(points: Float[ArrayLike, "N 3"]) -> Float[Array, "M 3"]:
+    """Points (N, 3) with copies of the first appended up to their size bucket (M =
+    :func:`bucket` (N, :data:`MESH_PER_OCTAVE`); N = 0 stays empty): the rows a flow moves each on
+    its own, so the copies change no real row and point sets of similar size share compiled programs.
+    """
+    points = jnp.asarray(points)
+    n = points.shape[0]
+    size = bucket(n, per_octave=MESH_PER_OCTAVE) if n else 0
+    if size == n:
+        return points
+    return jnp.concatenate([points, jnp.broadcast_to(points[:1], (size - n, points.shape[1]))])

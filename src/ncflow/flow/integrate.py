@@ -31,7 +31,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from ncflow.buckets import MESH_PER_OCTAVE, bucket
+from ncflow.buckets import pad_points
 
 Field = Callable[[Float[Array, "N 3"], Float[Array, ""]], Float[Array, "N 3"]]
 
@@ -136,14 +136,11 @@ def flow_points(
     (Q, N, 3) at ``times`` when given. Identical to :func:`integrate` on the same points (each
     trajectory is independent), so the result is resolution-agnostic. ``chunk_size`` processes the
     points in chunks of that many rows (bounded memory for large meshes). Jitted; the points are
-    padded to a size bucket (:func:`ncflow.buckets.bucket`, copies of the first point) so that
+    padded to a size bucket (:func:`ncflow.buckets.pad_points`, copies of the first point) so that
     point sets of similar size share the compiled program.
     """
     points = jnp.asarray(points)
     times = None if times is None else jnp.asarray(times, dtype=points.dtype)
     n = points.shape[0]
-    size = bucket(n, per_octave=MESH_PER_OCTAVE) if n else 0
-    if size > n:
-        points = jnp.concatenate([points, jnp.broadcast_to(points[:1], (size - n, points.shape[1]))])
-    out = _flow_jit(field, points, n_times, times, checkpoint, chunk_size)
-    return out[:, :n] if size > n else out
+    out = _flow_jit(field, pad_points(points), n_times, times, checkpoint, chunk_size)
+    return out[:, :n] if out.shape[1] > n else out

@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ncflow import __version__
-from ncflow.buckets import MESH_PER_OCTAVE, bucket
+from ncflow.buckets import pad_points
 from ncflow.config import config_to_dict
 from ncflow.flow import flow_points, hermite, integrate, time_grid
 from ncflow.geometry.mesh import Mesh
@@ -116,7 +116,7 @@ def output_motion(field, source: np.ndarray, frame_times: np.ndarray, n_times: i
     """The trained flow of everything the outputs need, in one compiled program: the source's
     frames (Q, V, 3) at ``frame_times`` (cubic Hermite between grid states, exact at grid times) and
     FINAL_BONE_SAMPLES fresh samples per bone (B, n, 3) with their grid states (T, B, n, 3). The
-    source is padded to a size bucket (:func:`ncflow.buckets.bucket`, copies of its first vertex;
+    source is padded to a size bucket (:func:`ncflow.buckets.pad_points`, copies of its first vertex;
     each trajectory is independent) so that sources of similar size share the program; the bone
     samples ride along with the source (flowing them separately compiled the flow twice).
     """
@@ -128,10 +128,9 @@ def output_motion(field, source: np.ndarray, frame_times: np.ndarray, n_times: i
         m = points.shape[0]
         return hermite(xs[:, :m], vs[:, :m], times), bones, xs[:, m:].reshape(n_times, *bones.shape)
 
-    n = source.shape[0]
-    padded = np.concatenate([source, np.repeat(source[:1], bucket(n, per_octave=MESH_PER_OCTAVE) - n, axis=0)])
-    frames, bones, states = output_flow(field, np.asarray(padded, DTYPE), np.asarray(frame_times, DTYPE), key)
-    return np.asarray(frames[:, :n], np.float64), bones, states
+    padded = pad_points(np.asarray(source, DTYPE))
+    frames, bones, states = output_flow(field, padded, np.asarray(frame_times, DTYPE), key)
+    return np.asarray(frames[:, : source.shape[0]], np.float64), bones, states
 
 
 def final_pose(arrays, config, pose: Pose, bones, states, lam, cw, frame_times: np.ndarray):
