@@ -141,3 +141,43 @@ def test_a_second_character_of_similar_size_reuses_the_compiled_training_step(tm
     # and the output phase's two programs (the flow of the padded source with the bone samples, the refit)
     first, second = [line for line in lines if line.startswith("OUTPUTS ")]
     assert first.count("jit_output_") == 2 and second == first
+
+
+def test_jit_run_once_gives_what_filter_jit_gives_and_compiles_without_llvm_optimisation():
+    """A module with static fields (a name, activations) and a NumPy field, built by one program: the
+    leaves of ``equinox.filter_jit`` to rounding (the NumPy field returned as a JAX array, as there); a
+    second key gives the second key's values; on the CPU the options turn LLVM's optimisations off.
+    """
+    import equinox as eqx
+    import jax
+    import numpy as np
+
+    from ncflow.cache import jit_run_once, run_once_options
+
+    class Net(eqx.Module):
+        mlp: eqx.nn.MLP
+        table: np.ndarray
+        scale: jax.Array
+        name: str = eqx.field(static=True)
+
+    def make(key, scale):
+        return Net(eqx.nn.MLP(3, 2, 8, 2, key=key), np.arange(4.0), 2.0 * scale, "net")
+
+    keys = jax.random.split(jax.random.key(7))
+    scale = jax.numpy.asarray(1.5)
+    once = jit_run_once(make)
+    for key in keys:
+        got, want = once(key, scale), eqx.filter_jit(make)(key, scale)
+        got_leaves, want_leaves = (jax.tree_util.tree_leaves(eqx.filter(m, eqx.is_array)) for m in (got, want))
+        assert len(got_leaves) == len(want_leaves) == 8
+        for g, w in zip(got_leaves, want_leaves):  # rounding: LLVM's optimisations contract a multiply-add
+            assert g.shape == w.shape and g.dtype == w.dtype
+            np.testing.assert_allclose(np.asarray(g), np.asarray(w), rtol=1e-12, atol=1e-15)
+        assert isinstance(got.mlp.layers[0].weight, jax.Array) and got.mlp.activation is want.mlp.activation
+        assert isinstance(got.table, jax.Array) and np.array_equal(got.table, np.arange(4.0))
+        assert float(got.scale) == 3.0 and got.name == "net"
+        x = jax.numpy.ones(3)
+        np.testing.assert_allclose(np.asarray(got.mlp(x)), np.asarray(want.mlp(x)), rtol=1e-12, atol=1e-15)
+    first, second = once(keys[0], scale), once(keys[1], scale)
+    assert not np.array_equal(np.asarray(first.mlp.layers[0].weight), np.asarray(second.mlp.layers[0].weight))
+    assert run_once_options() == ({"xla_backend_optimization_level": 0} if jax.default_backend() == "cpu" else {})

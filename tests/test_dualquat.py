@@ -87,6 +87,47 @@ def test_product_is_matrix_product_and_stays_unit(s1, s2):
     assert abs(r @ d) < 1e-12
 
 
+def test_quat_mul_is_the_hamilton_product_written_out():
+    """The sign-table contraction against the sixteen products written out, on non-unit quaternions
+    with broadcast leading axes, in float64 and float32.
+    """
+    rng = np.random.default_rng(3)
+    a, b = rng.normal(size=(5, 1, 4)), rng.normal(size=(6, 4))
+
+    def hamilton(p, q):
+        (pw, px, py, pz), (qw, qx, qy, qz) = p, q
+        return [
+            pw * qw - px * qx - py * qy - pz * qz,
+            pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw,
+        ]
+
+    want = np.array([[hamilton(a[i, 0], b[j]) for j in range(6)] for i in range(5)])
+    got = dq.quat_mul(a, b)
+    assert got.shape == (5, 6, 4) and got.dtype == jnp.float64
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-14)
+    got32 = dq.quat_mul(a.astype(np.float32), b.astype(np.float32))
+    assert got32.dtype == jnp.float32
+    np.testing.assert_allclose(got32, want, rtol=0, atol=1e-5)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_trig_series_match_the_closed_forms(dtype):
+    """cos φ, sin φ/φ and (φ cos φ − sin φ)/φ³ on both sides of the switch to the Taylor series
+    (the last one's closed form cancels for small φ: its own series there, four terms).
+    """
+    phi = np.array([1e-6, 1e-3, 0.05, 0.099, 0.101, 0.5, 0.99, 1.01, 2.0, 3.0])
+    cos_, sinc, c3 = (np.asarray(v, np.float64) for v in dq._trig(jnp.asarray(phi**2, dtype)))
+    p2 = phi**2
+    series_c3 = -1 / 3 + p2 / 30 - p2**2 / 840 + p2**3 / 45360
+    want_c3 = np.where(phi < 0.1, series_c3, (phi * np.cos(phi) - np.sin(phi)) / phi**3)
+    tol = 1e-12 if dtype == np.float64 else 2e-6
+    np.testing.assert_allclose(cos_, np.cos(phi), rtol=0, atol=tol)
+    np.testing.assert_allclose(sinc, np.sin(phi) / phi, rtol=0, atol=tol)
+    np.testing.assert_allclose(c3, want_c3, rtol=0, atol=tol)
+
+
 @PROP
 @given(seeds, seeds)
 def test_point_transform_matches_matrix_and_sandwich(s1, s2):

@@ -23,6 +23,7 @@ are not padded, so sources of other sizes still compile their own.
 
 from __future__ import annotations
 
+import functools
 import os
 from pathlib import Path
 
@@ -92,3 +93,42 @@ def configure_compilation_cache(setting: str = "auto") -> Path | None:
         jax.config.update("jax_compilation_cache_dir", str(folder))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     return folder
+
+
+def run_once_options() -> dict:
+    """Compiler options of a program a match runs once and that is small in its data (the parameter
+    initialisation, the output refit): on the CPU, XLA without LLVM's optimisation passes
+    (``xla_backend_optimization_level`` 0) compiles it in about half the time, and its one run costs
+    little either way; other backends keep their defaults. The options are part of the compilation
+    cache's key.
+    """
+    import jax
+
+    return {"xla_backend_optimization_level": 0} if jax.default_backend() == "cpu" else {}
+
+
+def jit_run_once(fn):
+    """``fn`` compiled as one program with :func:`run_once_options`.
+
+    Like ``equinox.filter_jit`` on array arguments (which takes no compiler options): the arrays of
+    ``fn``'s output (JAX or NumPy) come from the program as JAX arrays, its other leaves (functions,
+    static fields) are kept from the trace, which they do not depend on the values of.
+    """
+    import equinox as eqx
+    import jax
+
+    static = {}
+
+    @functools.wraps(fn)  # the program keeps fn's name (compilation logs, the cache's file names)
+    def arrays_of(*args):
+        out = fn(*args)
+        static["out"] = eqx.filter(out, eqx.is_array, inverse=True)
+        return eqx.filter(out, eqx.is_array)
+
+    program = jax.jit(arrays_of, compiler_options=run_once_options())
+
+    def call(*args):
+        arrays = program(*args)
+        return eqx.combine(arrays, static["out"])
+
+    return call

@@ -22,6 +22,7 @@ import numpy as np
 
 from ncflow import __version__
 from ncflow.buckets import pad_points
+from ncflow.cache import jit_run_once
 from ncflow.config import config_to_dict
 from ncflow.flow import flow_points, hermite, integrate, time_grid
 from ncflow.geometry.mesh import Mesh
@@ -144,7 +145,7 @@ def final_pose(arrays, config, pose: Pose, bones, states, lam, cw, frame_times: 
     n_times = config.flow.n_times
     skeleton, interp = arrays.skeleton, config.interp
 
-    @eqx.filter_jit
+    @jit_run_once
     def output_refit(pose, bones, xs, lam, cw, frame_times):
         times = time_grid(n_times, DTYPE)
         fw = constraint_fit_weights(n_times, bones.shape[0], DTYPE, lam[0] * cw[0], lam[1] * cw[1], c.trajectory_weight)

@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from ncflow.cache import jit_run_once
 from ncflow.errors import NcflowError
 from ncflow.flow import GSONet, SkinnedField, make_flow_field
 from ncflow.match.guard import DivergenceGuard
@@ -139,8 +140,11 @@ def train(
     """
     cfg = config
     k_init, k_train = key
-    # jitted: one program, not one per layer shape and operation
-    params = eqx.filter_jit(lambda k, p: init_params(k, cfg, arrays.skeleton, p, weight_mode))(k_init, initial_pose)
+
+    def initial_params(k, p):  # one program, not one per layer shape and operation
+        return init_params(k, cfg, arrays.skeleton, p, weight_mode)
+
+    params = jit_run_once(initial_params)(k_init, initial_pose)
     pose = rest_pose(arrays.skeleton, DTYPE) if initial_pose is None else initial_pose
     optimizer = build_optimizer(cfg)
     opt_state = optimizer.init(eqx.filter(params, eqx.is_inexact_array))
