@@ -143,16 +143,16 @@ def test_a_second_character_of_similar_size_reuses_the_compiled_training_step(tm
     assert first.count("jit_output_") == 2 and second == first
 
 
-def test_jit_run_once_gives_what_filter_jit_gives_and_compiles_without_llvm_optimisation():
+def test_jit_run_once_gives_what_filter_jit_gives():
     """A module with static fields (a name, activations) and a NumPy field, built by one program: the
     leaves of ``equinox.filter_jit`` to rounding (the NumPy field returned as a JAX array, as there); a
-    second key gives the second key's values; on the CPU the options turn LLVM's optimisations off.
+    second key gives the second key's values.
     """
     import equinox as eqx
     import jax
     import numpy as np
 
-    from ncflow.cache import jit_run_once, run_once_options
+    from ncflow.cache import jit_run_once
 
     class Net(eqx.Module):
         mlp: eqx.nn.MLP
@@ -180,4 +180,26 @@ def test_jit_run_once_gives_what_filter_jit_gives_and_compiles_without_llvm_opti
         np.testing.assert_allclose(np.asarray(got.mlp(x)), np.asarray(want.mlp(x)), rtol=1e-12, atol=1e-15)
     first, second = once(keys[0], scale), once(keys[1], scale)
     assert not np.array_equal(np.asarray(first.mlp.layers[0].weight), np.asarray(second.mlp.layers[0].weight))
-    assert run_once_options() == ({"xla_backend_optimization_level": 0} if jax.default_backend() == "cpu" else {})
+
+
+def test_jit_run_once_keeps_each_shapes_static_part_and_passes_its_options(monkeypatch):
+    """Calls with shapes 3, 5, 3: the static part of each result is its own call's (the third call
+    replays the first trace); options the compiler rejects make the call fail, so they reach it.
+    """
+    import equinox as eqx
+    import jax
+    import jax.numpy as jnp
+
+    import ncflow.cache as cache
+
+    class Sized(eqx.Module):
+        x: jax.Array
+        n: int = eqx.field(static=True)
+
+    once = cache.jit_run_once(lambda x: Sized(2.0 * x, x.shape[0]))
+    for n in (3, 5, 3):
+        out = once(jnp.ones(n))
+        assert out.n == n and out.x.shape == (n,) and float(out.x.sum()) == 2.0 * n
+    monkeypatch.setattr(cache, "run_once_options", lambda: {"xla_no_such_option_in_any_backend": 1})
+    with pytest.raises(Exception, match="xla_no_such_option_in_any_backend"):
+        cache.jit_run_once(lambda x: x + 1.0)(jnp.ones(4))

@@ -107,28 +107,41 @@ def run_once_options() -> dict:
     return {"xla_backend_optimization_level": 0} if jax.default_backend() == "cpu" else {}
 
 
+@functools.cache
+def _static_box():
+    """An Equinox module holding one value in its tree structure (no leaves): what a program returns
+    beside its arrays so that JAX keeps it with each trace.
+    """
+    import equinox as eqx
+
+    class StaticBox(eqx.Module):
+        value: object = eqx.field(static=True)
+
+    return StaticBox
+
+
 def jit_run_once(fn):
     """``fn`` compiled as one program with :func:`run_once_options`.
 
-    Like ``equinox.filter_jit`` on array arguments (which takes no compiler options): the arrays of
-    ``fn``'s output (JAX or NumPy) come from the program as JAX arrays, its other leaves (functions,
-    static fields) are kept from the trace, which they do not depend on the values of.
+    Like ``equinox.filter_jit`` (which takes no compiler options) for arguments that are arrays,
+    pytrees of arrays or None: the arrays of ``fn``'s output (JAX or NumPy) come from the program
+    as JAX arrays; its other leaves (functions, static fields) are returned in the output's tree
+    structure, so each trace (one per argument shape) keeps its own.
     """
     import equinox as eqx
     import jax
 
-    static = {}
+    box = _static_box()
 
     @functools.wraps(fn)  # the program keeps fn's name (compilation logs, the cache's file names)
     def arrays_of(*args):
         out = fn(*args)
-        static["out"] = eqx.filter(out, eqx.is_array, inverse=True)
-        return eqx.filter(out, eqx.is_array)
+        return eqx.filter(out, eqx.is_array), box(eqx.filter(out, eqx.is_array, inverse=True))
 
     program = jax.jit(arrays_of, compiler_options=run_once_options())
 
     def call(*args):
-        arrays = program(*args)
-        return eqx.combine(arrays, static["out"])
+        arrays, static = program(*args)
+        return eqx.combine(arrays, static.value)
 
     return call
