@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
-from ncflow.buckets import MESH_PER_OCTAVE, bucket
+from ncflow.buckets import MESH_PER_OCTAVE, bucket, pad_points
 from ncflow.flow import GSONet, integrate, time_grid
 from ncflow.geometry.topology import Topology, pad_topology
 from ncflow.losses import (
@@ -149,7 +149,7 @@ class Arrays:
 
             n_boundary = grow(topo.boundary_vertices.size) if topo.has_boundary else 0
             topo = pad_topology(topo, grow(topo.faces.shape[0]), grow(ne), n_boundary)
-            v = np.concatenate([v, np.repeat(v[:1], grow(nv) - nv, axis=0)])
+            v = pad_points(v)
         return cls(
             source=jnp.asarray(v, DTYPE),
             topology=topo,
