@@ -37,7 +37,6 @@ constraints, which are refitted at every step.
 from __future__ import annotations
 
 import dataclasses
-import functools
 from collections.abc import Sequence
 
 import jax
@@ -363,9 +362,9 @@ def search_poses(
         )
 
     score_fine = jax.jit(lambda poses, active, s, y: scores(poses, active, s, src_fine, y))
-    score_coarse = jax.jit(lambda poses, active, s, y: scores(poses, active, s, src_coarse, y), static_argnums=2)
+    score_coarse = jax.jit(lambda poses, active, s, y: scores(poses, active, s, src_coarse, y))
 
-    @functools.partial(jax.jit, static_argnums=6)
+    @jax.jit
     def expand(rotations, translations, hyp, hyp_child, j, c, sigma, y, n_real, n_h):
         """Every beam pose × every local rotation pair of joint j and its child c, and their scores
         (+inf, not computed, past the ``n_real`` real beam rows and the ``n_h`` real hypotheses).
