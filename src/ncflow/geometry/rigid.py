@@ -31,6 +31,23 @@ _TO_XYZW = [1, 2, 3, 0]  # (w, x, y, z) -> (x, y, z, w)
 _TO_WXYZ = [3, 0, 1, 2]  # (x, y, z, w) -> (w, x, y, z)
 
 
+def _hamilton_signs() -> np.ndarray:
+    table = np.zeros((4, 4, 4))
+    for j, k, i, sign in (
+        (0, 0, 0, 1), (1, 1, 0, -1), (2, 2, 0, -1), (3, 3, 0, -1),
+        (0, 1, 1, 1), (1, 0, 1, 1), (2, 3, 1, 1), (3, 2, 1, -1),
+        (0, 2, 2, 1), (1, 3, 2, -1), (2, 0, 2, 1), (3, 1, 2, 1),
+        (0, 3, 3, 1), (1, 2, 3, 1), (2, 1, 3, -1), (3, 0, 3, 1),
+    ):  # fmt: skip
+        table[j, k, i] = sign
+    return table
+
+
+HAMILTON_SIGNS = _hamilton_signs()
+"""C (4, 4, 4) with (a ⊗ b)_i = Σ_jk a_j b_k C_jki for quaternions (w, x, y, z): the Hamilton product's
+signs, shared by :func:`quat_multiply` (NumPy) and :func:`ncflow.skeleton.dualquat.quat_mul` (JAX)."""
+
+
 def _as_rotation(q, scalar_first: bool) -> Rotation:
     """The scipy rotations of quaternions (..., 4), flattened to (n, 4) (scipy ≥ 1.10 takes no more dimensions)."""
     q = np.asarray(q, dtype=np.float64)
@@ -155,17 +172,7 @@ def quat_multiply(
     b = np.asarray(b, dtype=np.float64)
     if not scalar_first:
         a, b = a[..., _TO_WXYZ], b[..., _TO_WXYZ]
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    q = np.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        axis=-1,
-    )
+    q = np.einsum("...j,...k,jki->...i", a, b, HAMILTON_SIGNS)
     return q if scalar_first else q[..., _TO_XYZW]
 
 
