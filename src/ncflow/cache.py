@@ -144,4 +144,5 @@ def jit_run_once(fn):
         arrays, static = program(*args)
         return eqx.combine(arrays, static.value)
 
+    call.lower = program.lower  # lower(*args).compile(): compiled ahead, found by the first call
     return call

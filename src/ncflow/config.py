@@ -183,6 +183,10 @@ class TissueConfig:
     file: str | None = None
 
 
+RESULT_NEUTRAL = ("jit_cache", "compile_ahead")
+"""Settings of :class:`Config` that never change a result (left out where configurations are compared)."""
+
+
 @dataclass(frozen=True)
 class Config:
     """Everything :func:`ncflow.match` needs besides the inputs.
@@ -202,6 +206,9 @@ class Config:
     correspondence are computed at full resolution with the trained field. ``none``: train on the
     full source. ``jit_cache`` (``auto`` | ``none`` | a folder): JAX's persistent compilation cache
     (:mod:`ncflow.cache`; ``$NCFLOW_JIT_CACHE`` wins); it never changes results.
+    ``compile_ahead``: compile the training step and the output programs in a background thread
+    while the target is placed and the pose searched (:mod:`ncflow.match.ahead`); it never changes
+    results.
     """
 
     preset: str = "fast"
@@ -223,6 +230,7 @@ class Config:
     placement: str = "auto"
     pose_search: bool = True
     jit_cache: str = "auto"
+    compile_ahead: bool = True
 
     @property
     def total_steps(self) -> int:
@@ -697,6 +705,7 @@ def validate_config(config: Config) -> Config:
         (len(config.phases) >= 1, "at least one phase is needed"),
         (config.placement in ("auto", "none"), "placement must be 'auto' or 'none'"),
         (isinstance(config.pose_search, bool), "pose_search must be true or false"),
+        (isinstance(config.compile_ahead, bool), "compile_ahead must be true or false"),
     ]
     for ok, message in checks:
         if not ok:

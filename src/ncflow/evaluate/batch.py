@@ -42,7 +42,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from ncflow.config import Config, config_to_dict
+from ncflow.config import RESULT_NEUTRAL, Config, config_to_dict
 from ncflow.errors import InputError
 from ncflow.evaluate.cluster import open_client
 from ncflow.evaluate.engine import RETRIES, Outcome, Task, error_line, run_tasks
@@ -67,11 +67,13 @@ def file_sha256(path: str | os.PathLike) -> str:
 
 
 def result_config(config: Config) -> dict:
-    """The configuration as far as it can change a result: without ``jit_cache`` (a cache folder),
-    ``tissue.file`` given by its content (``sha256:<hex>``) rather than its path.
+    """The configuration as far as it can change a result: without the settings that never do
+    (:data:`ncflow.config.RESULT_NEUTRAL`: a cache folder, compiling ahead), ``tissue.file`` given
+    by its content (``sha256:<hex>``) rather than its path.
     """
     data = json.loads(json.dumps(config_to_dict(config)))
-    data.pop("jit_cache", None)
+    for name in RESULT_NEUTRAL:
+        data.pop(name, None)
     file = config.tissue.file
     if file:
         data["tissue"]["file"] = f"sha256:{file_sha256(file)}" if os.path.isfile(file) else str(file)

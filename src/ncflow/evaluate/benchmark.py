@@ -50,7 +50,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from ncflow.config import Config, config_to_dict, with_metric
+from ncflow.config import RESULT_NEUTRAL, Config, config_to_dict, with_metric
 from ncflow.errors import InputError
 from ncflow.evaluate.aggregate import run_row
 from ncflow.evaluate.batch import MANIFEST_FILE, file_sha256, match_manifest, read_manifest, share_tissues
@@ -289,10 +289,10 @@ class BenchmarkResult:
 
 
 def _comparable(config: dict | None) -> dict | None:
-    """A method configuration without the settings that never change a result (``jit_cache``)."""
+    """A method configuration without the settings that never change a result (:data:`ncflow.config.RESULT_NEUTRAL`)."""
     if not isinstance(config, dict):
         return None
-    return {k: v for k, v in config.items() if k != "jit_cache"}
+    return {k: v for k, v in config.items() if k not in RESULT_NEUTRAL}
 
 
 def _check_method_configs(out: Path, methods: list[Method]) -> None:

@@ -19,13 +19,15 @@ import jax
 
 from ncflow.cache import configure_compilation_cache
 from ncflow.config import Config, preset, validate_config
+from ncflow.match.ahead import CompileAhead
 from ncflow.match.objective import Arrays
-from ncflow.match.prepare import prepare
+from ncflow.match.prepare import DTYPE, Problem, prepare
 from ncflow.match.progress import Progress
-from ncflow.match.result import MatchResult, build_result
+from ncflow.match.result import MatchResult, OutputPrograms, build_result
 from ncflow.match.stages import build_stages
-from ncflow.match.targets import target_measures
-from ncflow.match.train import TrainingError, train
+from ncflow.match.targets import target_measures, target_stand_ins
+from ncflow.match.train import TrainingError, compile_step, train, training_programs
+from ncflow.skeleton.kinematics import rest_pose
 
 __all__ = ["Matcher", "MatchResult", "TrainingError", "match"]
 
@@ -46,7 +48,12 @@ class Matcher:
         self.config = validate_config(config or preset("fast"))
         configure_compilation_cache(self.config.jit_cache)
         self.progress = Progress(self.config.total_steps, quiet, stream)
-        self.problem = prepare(source, target, skeleton, self.config, message=self.progress.message)
+        self.keys = jax.random.split(jax.random.key(self.config.seed), 3)  # initialisation, training, outputs
+        self.stages = build_stages(self.config)
+        self.ahead: CompileAhead | None = None
+        self.problem = prepare(
+            source, target, skeleton, self.config, message=self.progress.message, before_search=self._programs
+        )
         self.timings = {
             "setup": 0.0,
             "placement": self.problem.placement_seconds,
@@ -54,18 +61,44 @@ class Matcher:
             "pose_search": self.problem.pose_search_seconds,
         }
         t1 = time.perf_counter()
-        self.stages = build_stages(self.config)
         self.targets = target_measures(self.problem, self.stages, self.config, message=self.progress.message)
         self.timings["target"] = time.perf_counter() - t1
-        self.arrays = Arrays.from_problem(self.problem)
         self.timings["setup"] = time.perf_counter() - t0
+
+    def _programs(self, problem: Problem) -> None:
+        """The problem's arrays and compiled programs, built before the placement and the pose search
+        (:func:`~ncflow.match.prepare.prepare`'s ``before_search``), and with ``compile_ahead`` a
+        thread that compiles them meanwhile (:mod:`ncflow.match.ahead`).
+        """
+        cfg = self.config
+        self.arrays = Arrays.from_problem(problem)
+        n_centroids = int(problem.centroids.shape[0])
+        self.training = training_programs(self.arrays, self.stages, cfg, n_centroids, problem.skinning_weights["mode"])
+        self.outputs = OutputPrograms.build(self.arrays, cfg)
+        if not cfg.compile_ahead:
+            return
+        k_init, k_train, k_eval = self.keys
+        skeleton = self.arrays.skeleton
+        rest = rest_pose(skeleton, DTYPE)
+        start = rest if cfg.pose_search and cfg.flow.skinning else None  # what the pose search hands over
+        stand_ins = target_stand_ins(problem, self.stages, cfg)
+
+        def training():
+            compile_step(self.training, skeleton, self.stages, stand_ins, (k_init, k_train), start)
+
+        def outputs():
+            field = self.training.init(k_init, start).flow
+            self.outputs.compile(field, problem.source_vertices, cfg, k_eval, rest, skeleton.n_bones)
+
+        self.ahead = CompileAhead([("training", training), ("outputs", outputs)])
 
     def run(self) -> MatchResult:
         """Optimise, then build the result (user coordinates)."""
         cfg = self.config
         t_train = time.perf_counter()
+        waited = self.ahead.wait("training") if self.ahead else 0.0
         self.progress.start = t_train
-        k_init, k_train, k_eval = jax.random.split(jax.random.key(cfg.seed), 3)
+        k_init, k_train, k_eval = self.keys
         search = self.problem.pose_search
         initial_pose = None if search is None else search.pose
         params, pose, lam, cw, history, done, rollbacks = train(
@@ -78,14 +111,29 @@ class Matcher:
             int(self.problem.centroids.shape[0]),
             initial_pose,
             self.problem.skinning_weights["mode"],
+            self.training,
         )
         train_seconds = time.perf_counter() - t_train
         t_out = time.perf_counter()
+        waited_outputs = self.ahead.wait("outputs") if self.ahead else 0.0
         result = build_result(
-            self.problem, self.arrays, self.targets, cfg, params, pose, lam, cw, history, k_eval, self.timings
+            self.problem,
+            self.arrays,
+            self.targets,
+            cfg,
+            params,
+            pose,
+            lam,
+            cw,
+            history,
+            k_eval,
+            self.timings,
+            self.outputs,
         )
         timings = result.metrics["timings"]
         timings.update(train=train_seconds, per_step=train_seconds / max(done, 1), outputs=time.perf_counter() - t_out)
+        timings.update(compile_ahead_wait=waited + waited_outputs)
+        result.metrics["compile_ahead"] = self.ahead.report() if self.ahead else None
         result.metrics["rollbacks"] = rollbacks
         result.metrics["pose_search"] = None if search is None else search.to_dict()
         result.metrics["placement_trials"] = list(self.problem.placement_trials)

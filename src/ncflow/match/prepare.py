@@ -189,8 +189,9 @@ def check_skeleton_placement(skel: Skeleton, src: Mesh) -> list[str]:
     return check_inside(skel, src.vertices, src.faces)
 
 
-def prepare(source, target, skeleton, config, message=lambda text: None) -> Problem:
-    """Load, check and normalise the inputs; tissue centroids when the tissue term is on.
+def prepare(source, target, skeleton, config, message=lambda text: None, before_search=None) -> Problem:
+    """Load, check and normalise the inputs; tissue centroids when the tissue term is on; then place
+    the target and search the skeleton's pose.
 
     Args:
         source: the source mesh or its file.
@@ -198,6 +199,9 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Prob
         skeleton: the source's skeleton or its file.
         config: a validated :class:`ncflow.config.Config`.
         message: called with one-line progress notes (warnings, tetrahedralisation).
+        before_search: called with the problem as it stands before the placement and the pose
+            search (the target not yet placed, ``placement`` the identity, no pose): everything the
+            compiled programs depend on is known then (:mod:`ncflow.match.ahead`).
     """
     src, tgt, skel = load_inputs(source, target, skeleton)
     warnings = check_skeleton_placement(skel, src)
@@ -206,10 +210,6 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Prob
     norm, src_v, work = working_source(src, config, message)
     skel_n = skel.with_positions(norm.apply(skel.positions))
     tgt_v = norm.apply(tgt.vertices)
-    placement, search, trials, t_place, t_search = place_and_pose(
-        work.vertices, work.faces, tgt_v, tgt.faces, skel_n, config, message
-    )
-    tgt_v = placement.apply(tgt_v)
     t0 = time.perf_counter()
     centroids, tissue_info = source_tissue(work, config, message)
     tissue_seconds = time.perf_counter() - t0
@@ -222,7 +222,7 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Prob
             f"the target passes through itself ({weights['target_overlap']:.1%} of its area, the source "
             f"{weights['source_overlap']:.1%}): bone weights taken at each point's start"
         )
-    return Problem(
+    problem = Problem(
         source=src,
         target=tgt,
         skeleton=skel,
@@ -230,7 +230,7 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Prob
         source_vertices=src_v,
         working=work,
         target_vertices=tgt_v,
-        placement=placement,
+        placement=Placement.identity(),
         skeleton_normalized=skel_n,
         source_topology=source_topology,
         target_topology=target_topology,
@@ -239,11 +239,21 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Prob
         tissue_info=tissue_info,
         warnings=tuple(warnings),
         tissue_seconds=tissue_seconds,
+        skinning_weights=weights,
+    )
+    if before_search is not None:
+        before_search(problem)
+    placement, search, trials, t_place, t_search = place_and_pose(
+        work.vertices, work.faces, tgt_v, tgt.faces, skel_n, config, message
+    )
+    return dataclasses.replace(
+        problem,
+        target_vertices=placement.apply(tgt_v),
+        placement=placement,
         placement_seconds=t_place,
         pose_search=search,
         pose_search_seconds=t_search,
         placement_trials=trials,
-        skinning_weights=weights,
     )
 
 

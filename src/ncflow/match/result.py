@@ -113,13 +113,11 @@ class MatchResult:
 FINAL_BONE_SAMPLES = 200  # per bone, for the reported g_k (fresh samples, so an estimate of the integral)
 
 
-def output_motion(field, source: np.ndarray, frame_times: np.ndarray, n_times: int, skeleton, radii, key):
-    """The trained flow of everything the outputs need, in one compiled program: the source's
-    frames (Q, V, 3) at ``frame_times`` (cubic Hermite between grid states, exact at grid times) and
-    FINAL_BONE_SAMPLES fresh samples per bone (B, n, 3) with their grid states (T, B, n, 3). The
-    source is padded to a size bucket (:func:`ncflow.buckets.pad_points`, copies of its first vertex;
-    each trajectory is independent) so that sources of similar size share the program; the bone
-    samples ride along with the source (flowing them separately compiled the flow twice).
+def output_flow_program(skeleton, radii, n_times: int):
+    """The compiled program of :func:`output_motion`: ``(field, points, times, key)`` → the frames
+    (Q, N, 3) of ``points`` at ``times``, FINAL_BONE_SAMPLES fresh samples per bone (B, n, 3) and
+    their grid states (T, B, n, 3). Built once per problem, so that it can be compiled ahead
+    (:mod:`ncflow.match.ahead`).
     """
 
     @eqx.filter_jit
@@ -129,21 +127,34 @@ def output_motion(field, source: np.ndarray, frame_times: np.ndarray, n_times: i
         m = points.shape[0]
         return hermite(xs[:, :m], vs[:, :m], times), bones, xs[:, m:].reshape(n_times, *bones.shape)
 
-    padded = pad_points(np.asarray(source, DTYPE))
-    frames, bones, states = output_flow(field, padded, np.asarray(frame_times, DTYPE), key)
+    return output_flow
+
+
+def output_motion(field, source: np.ndarray, frame_times: np.ndarray, n_times: int, skeleton, radii, key, program=None):
+    """The trained flow of everything the outputs need, in one compiled program: the source's
+    frames (Q, V, 3) at ``frame_times`` (cubic Hermite between grid states, exact at grid times) and
+    FINAL_BONE_SAMPLES fresh samples per bone (B, n, 3) with their grid states (T, B, n, 3). The
+    source is padded to a size bucket (:func:`ncflow.buckets.pad_points`, copies of its first vertex;
+    each trajectory is independent) so that sources of similar size share the program; the bone
+    samples ride along with the source (flowing them separately compiled the flow twice).
+    ``program``: :func:`output_flow_program` of (skeleton, radii, n_times), when already built.
+    """
+    program = program or output_flow_program(skeleton, radii, n_times)
+    frames, bones, states = program(field, *output_flow_inputs(source, frame_times), key)
     return np.asarray(frames[:, : source.shape[0]], np.float64), bones, states
 
 
-def final_pose(arrays, config, pose: Pose, bones, states, lam, cw, frame_times: np.ndarray):
-    """The output pose, its (g^EP, g^TR) and the joint positions (Q, J, 3) at ``frame_times``: the
-    training pose refined on the fresh bone samples ``bones`` (B, n, 3) flowed to ``states``
-    (T, B, n, 3) (:func:`output_motion`; the per-step fit sees only a few samples) with the final
-    multiplier weights, then interpolated from rest. One compiled program, independent of the
-    source's size (run op by op it dispatched ~250 small executables: 20 s on a hand).
+def output_flow_inputs(source: np.ndarray, frame_times: np.ndarray) -> tuple:
+    """The points (the source padded to its size bucket) and times :func:`output_motion` flows."""
+    return pad_points(np.asarray(source, DTYPE)), np.asarray(frame_times, DTYPE)
+
+
+def output_refit_program(skeleton, config):
+    """The compiled program of :func:`final_pose`: ``(pose, bones, states, lam, cw, frame_times)`` →
+    (pose, g^EP, g^TR, joints). Built once per problem, so that it can be compiled ahead.
     """
     c = config.constraints
-    n_times = config.flow.n_times
-    skeleton, interp = arrays.skeleton, config.interp
+    n_times, interp = config.flow.n_times, config.interp
 
     @jit_run_once
     def output_refit(pose, bones, xs, lam, cw, frame_times):
@@ -154,8 +165,48 @@ def final_pose(arrays, config, pose: Pose, bones, states, lam, cw, frame_times: 
         joints = jax.vmap(lambda t: interpolate_joints(skeleton, pose, t, interp))(frame_times)
         return pose, g_ep, g_tr, joints
 
-    pose, g_ep, g_tr, joints = output_refit(pose, bones, states, lam, cw, np.asarray(frame_times, DTYPE))
+    return output_refit
+
+
+def final_pose(arrays, config, pose: Pose, bones, states, lam, cw, frame_times: np.ndarray, program=None):
+    """The output pose, its (g^EP, g^TR) and the joint positions (Q, J, 3) at ``frame_times``: the
+    training pose refined on the fresh bone samples ``bones`` (B, n, 3) flowed to ``states``
+    (T, B, n, 3) (:func:`output_motion`; the per-step fit sees only a few samples) with the final
+    multiplier weights, then interpolated from rest. One compiled program, independent of the
+    source's size (run op by op it dispatched ~250 small executables: 20 s on a hand).
+    ``program``: :func:`output_refit_program` of (skeleton, config), when already built.
+    """
+    program = program or output_refit_program(arrays.skeleton, config)
+    pose, g_ep, g_tr, joints = program(pose, bones, states, lam, cw, np.asarray(frame_times, DTYPE))
     return pose, np.asarray(g_ep, np.float64), np.asarray(g_tr, np.float64), np.asarray(joints, np.float64)
+
+
+@dataclasses.dataclass(frozen=True)
+class OutputPrograms:
+    """The output phase's two programs (:func:`output_flow_program`, :func:`output_refit_program`)."""
+
+    flow: Any
+    refit: Any
+
+    @classmethod
+    def build(cls, arrays, config) -> OutputPrograms:
+        """Both programs of a problem (nothing is compiled yet)."""
+        return cls(
+            output_flow_program(arrays.skeleton, arrays.radii, config.flow.n_times),
+            output_refit_program(arrays.skeleton, config),
+        )
+
+    def compile(self, field, source: np.ndarray, config, key, pose: Pose, n_bones: int) -> None:
+        """Compile both for a field of ``field``'s structure and a source of ``source``'s size,
+        without running them: the arguments :func:`build_result` passes (``pose``, ``key`` and the
+        field's values do not matter).
+        """
+        frame_times = np.linspace(0.0, 1.0, config.frames)
+        self.flow.lower(field, *output_flow_inputs(source, frame_times), key).compile()
+        bones = jnp.zeros((n_bones, FINAL_BONE_SAMPLES, 3), DTYPE)
+        states = jnp.zeros((config.flow.n_times, *bones.shape), DTYPE)
+        lam, cw = jnp.zeros((2, n_bones), DTYPE), jnp.zeros(2, DTYPE)
+        self.refit.lower(pose, bones, states, lam, cw, np.asarray(frame_times, DTYPE)).compile()
 
 
 def _versions() -> dict:
@@ -174,8 +225,11 @@ def _versions() -> dict:
     }
 
 
-def build_result(problem, arrays, targets, config, params, pose: Pose, lam, cw, history, key, timings) -> MatchResult:
+def build_result(
+    problem, arrays, targets, config, params, pose: Pose, lam, cw, history, key, timings, programs=None
+) -> MatchResult:
     """Flow the full source, refit the pose, interpolate the skeleton, project the target; metrics.
+    ``programs``: the problem's :class:`OutputPrograms`, when already built (and perhaps compiled).
 
     Raises:
         TrainingError: the trained flow produced non-finite positions.
@@ -185,14 +239,15 @@ def build_result(problem, arrays, targets, config, params, pose: Pose, lam, cw, 
     source, target, skeleton = problem.source, problem.target, problem.skeleton
     src_v = problem.source_vertices
     frame_times = np.linspace(0.0, 1.0, cfg.frames)
+    programs = programs or OutputPrograms.build(arrays, cfg)
     frames_n, bones, states = output_motion(
-        params.flow, src_v, frame_times, cfg.flow.n_times, arrays.skeleton, arrays.radii, key
+        params.flow, src_v, frame_times, cfg.flow.n_times, arrays.skeleton, arrays.radii, key, programs.flow
     )
     frames_n[0] = src_v  # t = 0 is the source exactly
     deformed_n = frames_n[-1]  # Hermite output at a grid time is the grid state: the state at t = 1
     if not np.all(np.isfinite(frames_n)):
         raise TrainingError("the trained flow produced non-finite positions")
-    pose, g_ep, g_tr, joints = final_pose(arrays, cfg, pose, bones, states, lam, cw, frame_times)
+    pose, g_ep, g_tr, joints = final_pose(arrays, cfg, pose, bones, states, lam, cw, frame_times, programs.refit)
     maps = correspondence_maps(src_v, source.faces, deformed_n, problem.target_vertices, target.faces)
     pivot = src_v.mean(axis=0)
     frames_n = move_back(problem.placement, frames_n, frame_times, pivot)

@@ -42,7 +42,7 @@ def target_measures(
             full[st.metric] = jax.jit(lambda v, m=metric: m.represent(v, problem.target_topology))(ty)
         y = full[st.metric]
         report = {"n": int(y.size), "m": int(y.size), "relative_error": 0.0, "seconds": 0.0}
-        if config.compress and y.size > config.compress:
+        if compressed(y.size, config):
             message(f"compressing the target ({st.metric}, sigma={st.sigma:g}) to {config.compress} points ...")
             y, rep = metric.compress(y, config.compress, st.sigma, st.phase_config.sigma_normal, config.seed)
             report = rep.to_dict()
@@ -53,3 +53,26 @@ def target_measures(
             raise InputError("the target has no measurable surface (zero self-energy)", problem.target.name)
         targets[key] = (y, yy, report)
     return targets
+
+
+def compressed(size: int, config) -> bool:
+    """Whether a target measure of ``size`` points is compressed (to ``config.compress`` rows)."""
+    return bool(config.compress and size > config.compress)
+
+
+def target_stand_ins(problem: Problem, stages: list[Stage], config) -> dict[TargetKey, tuple[Any, float, dict]]:
+    """What :func:`target_measures` returns, in shape only: zero measures of the rows the target's
+    would have (``compress``, or its size bucket) and ⟨Y, Y⟩ = 1, without placing or compressing
+    anything — the target's size does not change when it is placed. For compiling the training
+    step ahead (:mod:`ncflow.match.ahead`).
+    """
+    out: dict[TargetKey, tuple[Any, float, dict]] = {}
+    vertices = jax.ShapeDtypeStruct(problem.target_vertices.shape, DTYPE)
+    for st in stages:
+        metric = get_metric(st.metric)
+        shape = jax.eval_shape(lambda v, m=metric: m.represent(v, problem.target_topology), vertices)
+        n = shape.centers.shape[0]
+        rows = config.compress if compressed(n, config) else bucket(n, per_octave=MESH_PER_OCTAVE)
+        y = jax.tree_util.tree_map(lambda a, r=rows: jnp.zeros((r, *a.shape[1:]), a.dtype), shape)
+        out[(st.metric, st.sigma, st.phase_config.sigma_normal)] = (y, 1.0, {})
+    return out

@@ -11,7 +11,9 @@ half the learning rate, when the data term or the largest bone violation runs aw
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+from collections.abc import Callable
 
 import equinox as eqx
 import jax
@@ -118,6 +120,75 @@ def make_step(arrays: Arrays, settings: Settings, optimizer: optax.GradientTrans
     return step
 
 
+@dataclasses.dataclass(frozen=True)
+class TrainingPrograms:
+    """What the training compiles, built once per problem so that it can be compiled ahead
+    (:mod:`ncflow.match.ahead`) and then called: the parameter initialisation ``init(key, pose)``,
+    the optimiser, the objective's settings and the jitted step (:func:`make_step`; one for every
+    stage, the metric chosen by the traced index into ``settings.metrics``).
+    """
+
+    init: Callable
+    optimizer: optax.GradientTransformation
+    settings: Settings
+    step: Callable
+
+
+def training_programs(
+    arrays: Arrays, stages: list[Stage], config, n_centroids: int, weight_mode: str = "current"
+) -> TrainingPrograms:
+    """The :class:`TrainingPrograms` of a problem (nothing is compiled yet)."""
+    cfg = config
+
+    def initial_params(k, p):  # one program, not one per layer shape and operation
+        return init_params(k, cfg, arrays.skeleton, p, weight_mode)
+
+    optimizer = build_optimizer(cfg)
+    metrics = tuple(dict.fromkeys(st.metric for st in stages))
+    settings = Settings.from_config(cfg, metrics, arrays.n_edges, n_centroids)
+    step = make_step(arrays, settings, optimizer, cfg.constraints.multiplier_lr)
+    return TrainingPrograms(jit_run_once(initial_params), optimizer, settings, step)
+
+
+def initial_state(programs: TrainingPrograms, skeleton: Skeleton, key, initial_pose: Pose | None):
+    """(params, pose, optimiser state, multipliers) at the start of training."""
+    params = programs.init(key, initial_pose)
+    pose = rest_pose(skeleton, DTYPE) if initial_pose is None else initial_pose
+    opt_state = programs.optimizer.init(eqx.filter(params, eqx.is_inexact_array))
+    return params, pose, opt_state, jnp.zeros((2, skeleton.n_bones), DTYPE)
+
+
+def stage_inputs(stage: Stage, metrics: tuple[str, ...], targets: dict, placeholders: dict) -> tuple:
+    """The step's per-stage arguments: (targets, which, σ, σ_n, ⟨Y, Y⟩, phase weights). The other
+    metrics' slots hold a target of the same shape (compression makes one per σ): unread.
+    """
+    target, yy, _ = targets[(stage.metric, stage.sigma, stage.phase_config.sigma_normal)]
+    stage_targets = tuple(target if m == stage.metric else placeholders[m] for m in metrics)
+    pw = stage.phase_config.constraint_weight
+    cw = jnp.asarray([pw, pw if stage.phase_config.trajectory else 0.0], DTYPE)
+    which = jnp.asarray(metrics.index(stage.metric), jnp.int32)
+    sigma, sigma_n, yy = (jnp.asarray(v, DTYPE) for v in (stage.sigma, stage.phase_config.sigma_normal, yy))
+    return stage_targets, which, sigma, sigma_n, yy, cw
+
+
+def stage_placeholders(stages: list[Stage], targets: dict) -> dict:
+    """Per metric, the target of its last stage (what :func:`stage_inputs` puts in unread slots)."""
+    return {st.metric: targets[(st.metric, st.sigma, st.phase_config.sigma_normal)][0] for st in stages}
+
+
+def compile_step(programs: TrainingPrograms, skeleton: Skeleton, stages: list[Stage], targets: dict, key, pose):
+    """Compile the step (and the initialisation) for ``targets`` — real ones or stand-ins of their
+    shapes (:func:`ncflow.match.targets.target_stand_ins`) — without running it: the same
+    arguments :func:`train` passes, so its first call finds the executable.
+    """
+    k_init, k_train = key
+    params, pose, opt_state, lam = initial_state(programs, skeleton, k_init, pose)
+    metrics = programs.settings.metrics
+    inputs = stage_inputs(stages[0], metrics, targets, stage_placeholders(stages, targets))
+    scalars = (jnp.asarray(1.0, DTYPE), jnp.asarray(0.0, DTYPE), jax.random.fold_in(k_train, 0))
+    programs.step.lower(params, pose, opt_state, lam, *inputs, *scalars).compile()
+
+
 def train(
     arrays: Arrays,
     targets: dict,
@@ -128,44 +199,34 @@ def train(
     n_centroids: int,
     initial_pose: Pose | None = None,
     weight_mode: str = "current",
+    programs: TrainingPrograms | None = None,
 ):
     """Run every stage; returns ``(params, pose, lam, phase_weights, history, steps_done, rollbacks)``.
 
     ``initial_pose`` (from :mod:`ncflow.match.pose_search`) starts the skeleton-driven field and the
     per-step pose fit; default the rest pose. ``weight_mode`` is the skeleton-driven field's
     (:class:`~ncflow.flow.SkinnedField`; the matcher's choice, ``Problem.skinning_weights``).
+    ``programs``: the :func:`training_programs` of these arguments, when already built (and
+    perhaps compiled ahead); built here otherwise.
 
     Raises:
         TrainingError: a non-finite loss or non-finite trained parameters.
     """
     cfg = config
     k_init, k_train = key
-
-    def initial_params(k, p):  # one program, not one per layer shape and operation
-        return init_params(k, cfg, arrays.skeleton, p, weight_mode)
-
-    params = jit_run_once(initial_params)(k_init, initial_pose)
-    pose = rest_pose(arrays.skeleton, DTYPE) if initial_pose is None else initial_pose
-    optimizer = build_optimizer(cfg)
-    opt_state = optimizer.init(eqx.filter(params, eqx.is_inexact_array))
-    lam = jnp.zeros((2, arrays.skeleton.n_bones), DTYPE)
-    metrics = tuple(dict.fromkeys(st.metric for st in stages))
-    settings = Settings.from_config(cfg, metrics, arrays.n_edges, n_centroids)
-    step = make_step(arrays, settings, optimizer, cfg.constraints.multiplier_lr)
-    # the other metrics' slots hold a target of the same shape (compression makes one per σ): unread
-    placeholders = {st.metric: targets[(st.metric, st.sigma, st.phase_config.sigma_normal)][0] for st in stages}
+    programs = programs or training_programs(arrays, stages, cfg, n_centroids, weight_mode)
+    params, pose, opt_state, lam = initial_state(programs, arrays.skeleton, k_init, initial_pose)
+    metrics = programs.settings.metrics
+    step = programs.step
+    placeholders = stage_placeholders(stages, targets)
     history = []
     done = 0
     aux = None
     cw = None
     guard = DivergenceGuard(cfg.divergence_guard)
     for st in stages:
-        target, yy, _ = targets[(st.metric, st.sigma, st.phase_config.sigma_normal)]
-        stage_targets = tuple(target if m == st.metric else placeholders[m] for m in metrics)
-        which = jnp.asarray(metrics.index(st.metric), jnp.int32)
+        stage_targets, which, sigma, sigma_n, yy, cw = stage_inputs(st, metrics, targets, placeholders)
         schedule = phase_schedule(st.phase_config)
-        pw = st.phase_config.constraint_weight
-        cw = jnp.asarray([pw, pw if st.phase_config.trajectory else 0.0], DTYPE)
         phase_name = st.phase_config.name or st.metric
         guard.start_stage((params, pose, opt_state, lam), watch_violation=done > 0)
         for s in range(st.steps):
@@ -177,9 +238,9 @@ def train(
                 lam,
                 stage_targets,
                 which,
-                jnp.asarray(st.sigma, DTYPE),
-                jnp.asarray(st.phase_config.sigma_normal, DTYPE),
-                jnp.asarray(yy, DTYPE),
+                sigma,
+                sigma_n,
+                yy,
                 cw,
                 lr,
                 jnp.asarray(done / cfg.total_steps, DTYPE),
