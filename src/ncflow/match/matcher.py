@@ -21,7 +21,7 @@ from ncflow.cache import configure_compilation_cache
 from ncflow.config import Config, preset, validate_config
 from ncflow.match.ahead import CompileAhead
 from ncflow.match.objective import Arrays
-from ncflow.match.prepare import DTYPE, Problem, prepare
+from ncflow.match.prepare import DTYPE, Problem, prepare, searches_pose
 from ncflow.match.progress import Progress
 from ncflow.match.result import MatchResult, OutputPrograms, build_result
 from ncflow.match.stages import build_stages
@@ -80,7 +80,7 @@ class Matcher:
         k_init, k_train, k_eval = self.keys
         skeleton = self.arrays.skeleton
         rest = rest_pose(skeleton, DTYPE)
-        start = rest if cfg.pose_search and cfg.flow.skinning else None  # what the pose search hands over
+        start = rest if searches_pose(cfg) else None  # what the pose search hands over (its pose's shapes)
         stand_ins = target_stand_ins(problem, self.stages, cfg)
 
         def training():

@@ -26,9 +26,10 @@ descends) for the pose of the source skeleton whose skinned source best matches 
   leaving it;
 * three such searches run — at σ = 0.3 without and with the exchanges, and at σ = 0.15, where
   fingers or legs side by side no longer blur into one — and their distinct survivors are refined
-  by gradient descent on the same score (coarse, then finer σ); the best one initialises the
-  field's pose (and the per-step pose fit); the rest pose is kept when nothing explains the
-  target better.
+  by gradient descent on the same score: all of them at the coarse σ, then only the best few that
+  are still distinct (scored at the finer σ; several survivors often end in one pose) at the finer
+  σ; the best one initialises the field's pose (and the per-step pose fit); the rest pose is kept
+  when nothing explains the target better.
 
 The ``paper`` preset (no skeleton-driven field) does not use it: there the pose only enters the
 constraints, which are refitted at every step.
@@ -215,6 +216,31 @@ def exchanged(
     return out
 
 
+def best_distinct(
+    scores: Float[np.ndarray, " N"], joints: Float[np.ndarray, "N J 3"], count: int, distinct: float
+) -> list[int]:
+    """Indices of at most ``count`` poses, lowest finite score first, skipping any whose joints all
+    lie within ``distinct`` of a pose already taken (the same pose found twice).
+    """
+    picked: list[int] = []
+    for i in np.argsort(scores, kind="stable"):
+        if np.isfinite(scores[i]) and len(picked) < count:
+            if all(np.abs(joints[i] - joints[k]).max() > distinct for k in picked):
+                picked.append(int(i))
+    return picked
+
+
+def _completed(first: Pose, pooled: Pose) -> Pose:
+    """``first`` followed by the rows of ``pooled`` past its length: the pooled shape, so that one
+    compiled scorer serves the pooled beams and the refined candidates.
+    """
+    n = first.rotations.shape[0]
+    return Pose(
+        jnp.concatenate([first.rotations, pooled.rotations[n:]]),
+        jnp.concatenate([first.translation, pooled.translation[n:]]),
+    )
+
+
 def _skinned(skeleton, weights, x: Varifold, pose: Pose) -> Varifold:
     m = bone_motions(skeleton, swing_only(skeleton, pose), jnp.asarray(1.0, pose.rotations.dtype))
     r, c = quat_to_matrix(dq_rotation(m)), dq_translation(m)  # (B, 3, 3), (B, 3)
@@ -296,6 +322,7 @@ def search_poses(
     sigmas_refine: tuple[float, ...] = (0.3, 0.15),
     beam: int = 4,
     refined: int = 8,
+    refined_fine: int = 3,
     distinct: float = 0.02,
     refine_steps: int = 100,
     n_search: int = 600,
@@ -320,6 +347,8 @@ def search_poses(
         sigmas_refine: kernel scales of the gradient refinement, in turn.
         beam: number of complete poses kept between joints.
         refined: number of distinct poses of the pooled beams refined (the rest pose besides).
+        refined_fine: number of distinct poses refined further at each finer scale of
+            ``sigmas_refine``, best scored at that scale first (the others keep their pose).
         distinct: two poses whose joints all lie within this distance are one.
         refine_steps: gradient steps per refinement scale.
         n_search: Diracs per surface in the discrete search.
@@ -467,24 +496,22 @@ def search_poses(
         pooled, valid = pool(found)
         # the searches often agree: refine at most ``refined`` distinct poses, best scored first
         first = np.array(score_fine(pooled, valid, float(sigmas_refine[0]), y_fine), np.float64)
-        joints = np.asarray(pose_joints(pooled))
-        picked = []
-        for i in np.argsort(first[:-1], kind="stable"):
-            if np.isfinite(first[i]) and len(picked) < n_refined:
-                if all(np.abs(joints[i] - joints[k]).max() > distinct for k in picked):
-                    picked.append(int(i))
+        picked = best_distinct(first[:-1], np.asarray(pose_joints(pooled))[:-1], n_refined, distinct)
         rows = np.array(picked + [pooled.rotations.shape[0] - 1] * (n_refined + 1 - len(picked)))
         real = np.arange(rows.size) < len(picked)
         real[-1] = True  # the rest pose, refined too; the copies before it fill the fixed shape
-        candidates = Pose(pooled.rotations[rows], pooled.translation[rows])
-        for sigma in sigmas_refine:
-            candidates = refine_all(candidates, real, float(sigma), y_fine)
-        padded = Pose(  # scored in the pooled shape: one compiled scorer
-            jnp.concatenate([candidates.rotations, pooled.rotations[rows.size :]]),
-            jnp.concatenate([candidates.translation, pooled.translation[rows.size :]]),
-        )
         only = np.zeros(valid.size, bool)
         scored = np.concatenate([real, only[rows.size :]])
+        candidates = Pose(pooled.rotations[rows], pooled.translation[rows])
+        active = real
+        for level, sigma in enumerate(sigmas_refine):
+            if level:  # finer scales: the best few that are still distinct
+                shaped = _completed(candidates, pooled)
+                s = np.array(score_fine(shaped, scored, float(sigma), y_fine), np.float64)[: rows.size]
+                joints = np.asarray(pose_joints(shaped))[: rows.size]
+                active = np.isin(np.arange(rows.size), best_distinct(s, joints, refined_fine, distinct))
+            candidates = refine_all(candidates, active, float(sigma), y_fine)
+        padded = _completed(candidates, pooled)
         final = np.array(score_fine(padded, scored, float(sigmas_refine[-1]), y_fine), np.float64)
         rests = Pose(jnp.repeat(rest.rotations[None], valid.size, 0), jnp.repeat(rest.translation[None], valid.size, 0))
         only[0] = True

@@ -127,6 +127,11 @@ def source_tissue(work: Decimation, config, message=lambda text: None) -> tuple[
     return tissue_centroids(work.vertices, work.faces, config.tissue)
 
 
+def searches_pose(config) -> bool:
+    """Whether the matcher searches the skeleton's initial pose (``pose_search`` with ``flow.skinning``)."""
+    return bool(config.pose_search and config.flow.skinning)
+
+
 def place_and_pose(src_v, src_f, tgt_v, tgt_f, skeleton: Skeleton, config, message=lambda text: None):
     """The target's placement and the source skeleton's initial pose (normalised coordinates).
 
@@ -136,7 +141,7 @@ def place_and_pose(src_v, src_f, tgt_v, tgt_f, skeleton: Skeleton, config, messa
     (:func:`~ncflow.match.placement.place_target`). Returns (placement, pose search result or None,
     trials, placement seconds, pose-search seconds).
     """
-    searching = bool(config.pose_search and config.flow.skinning)
+    searching = searches_pose(config)
     t0 = time.perf_counter()
     if config.placement != "auto":
         placements = [Placement.identity()]
