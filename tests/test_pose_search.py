@@ -6,15 +6,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from ncflow.geometry.normalize import fit_normalization
-from ncflow.match.pose_search import (
-    best_distinct,
-    chain_hypotheses,
-    exchangeable_limbs,
-    exchanged,
-    joint_hypotheses,
-    search_pose,
-    search_poses,
-)
+from ncflow.match.pose_hypotheses import chain_hypotheses, exchangeable_limbs, exchanged, joint_hypotheses
+from ncflow.match.pose_search import best_distinct, search_pose, search_poses
 from ncflow.skeleton import Skeleton
 from ncflow.skeleton.kinematics import Pose, forward_kinematics, joint_positions
 from ncflow.synthetic.shapes import bend, capsule

@@ -11,8 +11,9 @@ thread lowers and compiles them (``lower(...).compile()``) for stand-ins of the 
 get (:func:`~ncflow.match.targets.target_stand_ins`). That fills the caches a call fills, so the
 first real call finds its executable; with the persistent compilation cache on, a warm run's
 thread reads them back from disk instead. Nothing is run: the results are those of a match without
-it, bit for bit. A failure in the thread is recorded (``metrics.json``: ``compile_ahead``) and the
-program is then compiled when first called, as without it.
+it, bit for bit. A failure in the thread is recorded (``metrics.json``: ``compile_ahead.errors``;
+the thread's seconds per job are under ``timings``) and the program is then compiled when first
+called, as without it.
 
 Written by hand: JAX compiles on the calling thread, and no library schedules ahead-of-time
 compilation of programs whose arguments do not exist yet.
@@ -28,7 +29,8 @@ from collections.abc import Callable
 class CompileAhead:
     """Run ``jobs`` (name, function without arguments) in turn in one background thread.
 
-    :meth:`wait` blocks until a job is done (or failed); :meth:`report` says how each went. The
+    :meth:`wait` blocks until a job is done (or failed); ``seconds`` and ``errors`` (job → message)
+    say how each went. The
     thread is not a daemon: an interpreter that exits waits for the compilation under way rather
     than tearing XLA down beneath it.
     """
@@ -60,7 +62,3 @@ class CompileAhead:
     def join(self) -> None:
         """Block until every job has finished."""
         self._thread.join()
-
-    def report(self) -> dict:
-        """``{"seconds": {job: s}, "errors": {job: message}}`` of the jobs finished so far."""
-        return {"seconds": dict(self.seconds), "errors": dict(self.errors)}

@@ -132,8 +132,10 @@ class Matcher:
         )
         timings = result.metrics["timings"]
         timings.update(train=train_seconds, per_step=train_seconds / max(done, 1), outputs=time.perf_counter() - t_out)
-        timings.update(compile_ahead_wait=waited + waited_outputs)
-        result.metrics["compile_ahead"] = self.ahead.report() if self.ahead else None
+        if self.ahead:  # the thread's seconds per job, and how long the run waited for it
+            timings.update({f"compile_ahead_{job}": s for job, s in self.ahead.seconds.items()})
+            timings.update(compile_ahead_wait=waited + waited_outputs)
+        result.metrics["compile_ahead"] = {"errors": dict(self.ahead.errors)} if self.ahead else None
         result.metrics["rollbacks"] = rollbacks
         result.metrics["pose_search"] = None if search is None else search.to_dict()
         result.metrics["placement_trials"] = list(self.problem.placement_trials)

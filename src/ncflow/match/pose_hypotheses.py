@@ -1,0 +1,144 @@
+"""The hypotheses of the articulated pose search (:mod:`ncflow.match.pose_search`): the local rotations
+each joint tries (bends across its bone, twists about it, and bends chained with the next joint's)
+and the limbs that are tried exchanged (same-shaped subtrees of one joint, each taking the other's
+bone directions). NumPy and SciPy rotations on the host; nothing here is compiled.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from jaxtyping import Float
+from scipy.spatial.transform import Rotation
+
+from ncflow.skeleton import Skeleton
+
+
+def _bend_axes(skeleton: Skeleton, joint: int):
+    children = np.flatnonzero(np.asarray(skeleton.parents) == joint)
+    pos = np.asarray(skeleton.positions)
+    d = pos[children].mean(0) - pos[joint]
+    if np.linalg.norm(d) < 1e-6 * max(np.linalg.norm(pos[children[0]] - pos[joint]), 1e-12):
+        d = pos[children[0]] - pos[joint]  # children on opposite sides (a pelvis): the first child's bone
+    a = d / max(np.linalg.norm(d), 1e-12)
+    u = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    return a, u, np.cross(a, u)
+
+
+_BENDS = (45, -45, 90, -90, 135, -135, 180)
+
+
+def joint_hypotheses(skeleton: Skeleton, joint: int) -> Float[np.ndarray, "H 4"]:
+    """Local rotations (w, x, y, z) tried at ``joint``: the identity first, then bends of ±45°, ±90°,
+    ±135° and 180° about the two axes across the mean direction of its child bones and twists of
+    ±90° and 180° about it.
+    """
+    a, u, v = _bend_axes(skeleton, joint)
+    rotvecs = [np.zeros(3)]
+    for axis in (u, v):
+        for deg in _BENDS:
+            rotvecs.append(np.radians(deg) * axis)
+    for deg in (90, -90, 180):
+        rotvecs.append(np.radians(deg) * a)
+    return Rotation.from_rotvec(np.asarray(rotvecs)).as_quat(scalar_first=True)
+
+
+def chain_hypotheses(skeleton: Skeleton, joint: int) -> tuple[Float[np.ndarray, "H 4"], Float[np.ndarray, "H 4"], int]:
+    """Pairs of local rotations for ``joint`` and the next joint down its chain, and that joint.
+
+    A bend that only pays off together with the next one — a hip flexed by 90° with the knee bent
+    back (a crouch), a finger's first joint curled with the second (a fist) — scores worse alone
+    than no bend and falls out of the beam. So when ``joint`` has one child that itself moves a bone,
+    each bend of ±45°, ±90° and ±135° of ``joint`` is also tried with the child bent by the same
+    angle, about the same axis, in the opposite (a Z) and in the same sense (a C). Returns
+    (H, 4) rotations of ``joint`` (:func:`joint_hypotheses` first), (H, 4) of the child (identity
+    where it does not move) and the child's index (``joint`` itself when there is no such child).
+    """
+    parents = np.asarray(skeleton.parents)
+    single = joint_hypotheses(skeleton, joint)
+    children = np.flatnonzero(parents == joint)
+    ident = np.tile([1.0, 0.0, 0.0, 0.0], (single.shape[0], 1))
+    if children.size != 1 or not np.any(parents == children[0]):
+        return single, ident, joint
+    _, u, v = _bend_axes(skeleton, joint)
+    first, second = [], []
+    for axis in (u, v):
+        for deg in _BENDS[:-1]:
+            for sense in (-1, 1):
+                first.append(np.radians(deg) * axis)
+                second.append(sense * np.radians(deg) * axis)
+    q1 = Rotation.from_rotvec(np.asarray(first)).as_quat(scalar_first=True)
+    q2 = Rotation.from_rotvec(np.asarray(second)).as_quat(scalar_first=True)
+    return np.concatenate([single, q1]), np.concatenate([ident, q2]), int(children[0])
+
+
+def exchangeable_limbs(skeleton: Skeleton, length_ratio: float = 1.5) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Pairs of limbs the search tries exchanging: subtrees hanging from the same joint with the same
+    shape (a chain of as many joints, or the same branching) whose bone lengths sum to within
+    ``length_ratio`` of each other — left and right legs, arms, fingers. Each pair is two arrays
+    of joint indices in matching depth-first order, the limb's first joint first.
+    """
+    parents = np.asarray(skeleton.parents)
+    children = [np.flatnonzero(parents == j).tolist() for j in range(skeleton.n_joints)]
+    lengths = np.concatenate([[0.0], skeleton.bone_lengths])
+
+    def shape(j):
+        return tuple(shape(c) for c in children[j])
+
+    def order(j):
+        return [j] + [k for c in children[j] for k in order(c)]
+
+    pairs = []
+    for kids in children:
+        for i, a in enumerate(kids):
+            for b in kids[i + 1 :]:
+                if not children[a] or shape(a) != shape(b):
+                    continue
+                la, lb = order(a), order(b)
+                sa, sb = lengths[la[1:]].sum(), lengths[lb[1:]].sum()
+                if max(sa, sb) <= length_ratio * max(min(sa, sb), 1e-12):
+                    pairs.append((np.asarray(la), np.asarray(lb)))
+    return pairs
+
+
+def world_frames(skeleton: Skeleton, rotations: np.ndarray) -> tuple[Rotation, np.ndarray]:
+    """World rotations and joint positions (root at its rest place) of local rotations (J, 4), in
+    float64 on the host: :func:`~ncflow.skeleton.kinematics.forward_kinematics` (G_j = G_parent L_j)
+    for the few poses of an exchange step, without a device round trip per pose.
+    """
+    parents, off = np.asarray(skeleton.parents), np.asarray(skeleton.offsets)
+    local = Rotation.from_quat(rotations, scalar_first=True)
+    world, pos = [None] * skeleton.n_joints, np.zeros((skeleton.n_joints, 3))
+    for j in np.concatenate(skeleton.levels):
+        p = parents[j]
+        world[j] = local[j] if p < 0 else world[p] * local[j]
+        pos[j] = off[j] if p < 0 else pos[p] + world[p].apply(off[j])
+    return Rotation.concatenate(world), pos
+
+
+def exchanged(
+    skeleton: Skeleton, rotations: Float[np.ndarray, "J 4"], a: np.ndarray, b: np.ndarray
+) -> Float[np.ndarray, "J 4"]:
+    """Local rotations (J, 4) with limbs ``a`` and ``b`` (:func:`exchangeable_limbs`) exchanged: every
+    joint of one limb turns its bone (towards the mean of its children) to the world direction of the
+    matching bone of the other, by the smallest rotation from rest; the rest of the pose is kept.
+    """
+    world, pos = world_frames(skeleton, rotations)
+    parents, off = np.asarray(skeleton.parents), np.asarray(skeleton.offsets)
+    new_world = {j: world[j] for j in range(skeleton.n_joints)}
+    out = np.array(rotations, np.float64)
+    for mine, other in ((a, b), (b, a)):
+        to_other = dict(zip(mine.tolist(), other.tolist()))
+        for j in mine.tolist():
+            kids = np.flatnonzero(parents == j)
+            if kids.size == 0:
+                continue
+            k = to_other[j]
+            aim = pos[[to_other[c] for c in kids.tolist()]].mean(0) - pos[k]
+            rest = off[kids].mean(0)
+            if np.linalg.norm(aim) < 1e-9 or np.linalg.norm(rest) < 1e-9:
+                continue
+            turn = Rotation.align_vectors(aim[None], rest[None])[0]
+            new_world[j] = turn
+            out[j] = (new_world[parents[j]].inv() * turn).as_quat(scalar_first=True)
+    return out
