@@ -124,5 +124,4 @@ def test_compile_ahead_records_failures_and_waits():
     assert ahead.errors == {"broken": "ValueError: no such shape"} and ran == []
     gate.set()
     ahead.wait("slow")
-    ahead.join()
     assert ran == ["slow"] and set(ahead.seconds) == {"broken", "slow"}

@@ -30,9 +30,8 @@ class CompileAhead:
     """Run ``jobs`` (name, function without arguments) in turn in one background thread.
 
     :meth:`wait` blocks until a job is done (or failed); ``seconds`` and ``errors`` (job → message)
-    say how each went. The
-    thread is not a daemon: an interpreter that exits waits for the compilation under way rather
-    than tearing XLA down beneath it.
+    say how each went. The thread is not a daemon: an interpreter that exits waits for the
+    compilation under way rather than tearing XLA down beneath it.
     """
 
     def __init__(self, jobs: list[tuple[str, Callable[[], object]]]):
@@ -58,7 +57,3 @@ class CompileAhead:
         t0 = time.perf_counter()
         self._done[name].wait()
         return time.perf_counter() - t0
-
-    def join(self) -> None:
-        """Block until every job has finished."""
-        self._thread.join()

@@ -144,6 +144,11 @@ def output_motion(field, source: np.ndarray, frame_times: np.ndarray, n_times: i
     return np.asarray(frames[:, : source.shape[0]], np.float64), bones, states
 
 
+def output_frame_times(config) -> np.ndarray:
+    """(Q,) the times of the output frames: ``config.frames`` uniform times in [0, 1]."""
+    return np.linspace(0.0, 1.0, config.frames)
+
+
 def output_flow_inputs(source: np.ndarray, frame_times: np.ndarray) -> tuple:
     """The points (the source padded to its size bucket) and times :func:`output_motion` flows."""
     return pad_points(np.asarray(source, DTYPE)), np.asarray(frame_times, DTYPE)
@@ -201,7 +206,7 @@ class OutputPrograms:
         without running them: the arguments :func:`build_result` passes (``pose``, ``key`` and the
         field's values do not matter).
         """
-        frame_times = np.linspace(0.0, 1.0, config.frames)
+        frame_times = output_frame_times(config)
         self.flow.lower(field, *output_flow_inputs(source, frame_times), key).compile()
         bones = jnp.zeros((n_bones, FINAL_BONE_SAMPLES, 3), DTYPE)
         states = jnp.zeros((config.flow.n_times, *bones.shape), DTYPE)
@@ -238,7 +243,7 @@ def build_result(
     norm = problem.normalization
     source, target, skeleton = problem.source, problem.target, problem.skeleton
     src_v = problem.source_vertices
-    frame_times = np.linspace(0.0, 1.0, cfg.frames)
+    frame_times = output_frame_times(cfg)
     programs = programs or OutputPrograms.build(arrays, cfg)
     frames_n, bones, states = output_motion(
         params.flow, src_v, frame_times, cfg.flow.n_times, arrays.skeleton, arrays.radii, key, programs.flow
