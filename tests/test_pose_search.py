@@ -5,9 +5,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from ncflow.flow.skinning import skinning_weights
 from ncflow.geometry.normalize import fit_normalization
 from ncflow.match.pose_hypotheses import chain_hypotheses, exchangeable_limbs, exchanged, joint_hypotheses
-from ncflow.match.pose_search import best_distinct, search_pose, search_poses
+from ncflow.match.pose_search import best_distinct, moving_diracs, search_pose, search_poses
 from ncflow.skeleton import Skeleton
 from ncflow.skeleton.kinematics import Pose, forward_kinematics, joint_positions
 from ncflow.synthetic.shapes import bend, capsule
@@ -206,3 +207,45 @@ def test_refining_only_the_best_distinct_at_the_finer_scale_keeps_the_pose():
     every = search_pose(skel, s, fs, t, ft, skinning_width=width, refined_fine=9)
     np.testing.assert_allclose(few.score, every.score, rtol=1e-6)
     np.testing.assert_allclose(np.asarray(few.pose.rotations), np.asarray(every.pose.rotations), atol=1e-6)
+
+
+def test_moving_diracs_are_those_weighted_on_the_bones_below_the_joint():
+    """Against a brute force: the bones a rotation of joint j moves are those whose parent joint is
+    j or one of its descendants (found by walking up from each bone's parent)."""
+    skel, *_ = _legs_problem((40.0, -40.0), (40.0, -40.0))
+    rng = np.random.default_rng(5)
+    weights = rng.dirichlet(np.full(skel.n_bones, 0.3), size=200)
+    parents = np.asarray(skel.parents)
+
+    def below(k, j):
+        while k >= 0:
+            if k == j:
+                return True
+            k = parents[k]
+        return False
+
+    for j in range(skel.n_joints):
+        bones = [b for b in range(skel.n_bones) if below(parents[b + 1], j)]
+        for tol in (1e-3, 0.3):
+            expected = np.flatnonzero(weights[:, bones].sum(1) > tol)
+            np.testing.assert_array_equal(moving_diracs(skel, weights, j, tol), expected)
+
+
+def test_scoring_only_the_moved_diracs_finds_the_pose_of_the_full_sums():
+    """The discrete search sums only the Diracs a joint moves (each leg here); holding every Dirac
+    as moving (moving_tol < 0: the full sums) finds the same pose and score."""
+    skel, s, fs, t, ft, _ = _legs_problem((55.0, -55.0), (-55.0, 55.0))
+    width = 0.05 * float(np.median(skel.bone_lengths))
+    weights = np.asarray(
+        skinning_weights(
+            jnp.asarray(s, jnp.float32),
+            jnp.asarray(skel.positions[skel.bones[:, 0]], jnp.float32),
+            jnp.asarray(skel.positions[skel.bones[:, 1]], jnp.float32),
+            width,
+        )
+    )
+    assert 0 < moving_diracs(skel, weights, 2, 1e-3).size < 0.5 * s.shape[0]  # the subset path is taken
+    part = search_pose(skel, s, fs, t, ft, skinning_width=width)
+    full = search_pose(skel, s, fs, t, ft, skinning_width=width, moving_tol=-1.0)
+    np.testing.assert_allclose(part.score, full.score, rtol=1e-5)
+    np.testing.assert_allclose(np.asarray(part.pose.rotations), np.asarray(full.pose.rotations), atol=1e-4)

@@ -19,6 +19,10 @@ descends) for the pose of the source skeleton whose skinned source best matches 
   ``beam`` poses found so far; all hypotheses of a joint are scored in one jitted batch and the best
   ``beam`` complete poses are kept, so a choice that only pays off once a later joint has moved
   (left and right limbs exchanged, a finger bent back) survives until it does;
+* a joint's hypotheses move only the Diracs weighted on the bones below it (a finger's, a leg's:
+  :func:`moving_diracs`), so the pairs between the others, the same for all its hypotheses, are
+  summed once per beam pose and each hypothesis adds the pairs of the moved ones: O(|M|·N) instead
+  of O(N²) a hypothesis (every joint's set padded to one size: one compiled program);
 * limbs hanging from the same joint with the same shape (left and right legs, fingers;
   :func:`~ncflow.match.pose_hypotheses.exchangeable_limbs`) are also tried exchanged, each taking
   the other's bone directions (:func:`~ncflow.match.pose_hypotheses.exchanged`), before their own
@@ -28,7 +32,8 @@ descends) for the pose of the source skeleton whose skinned source best matches 
   fingers or legs side by side no longer blur into one — and their distinct survivors are refined
   by gradient descent on the same score: all of them at the coarse σ, then only the best few that
   are still distinct (scored at the finer σ; several survivors often end in one pose) at the finer
-  σ; the best one initialises the field's pose (and the per-step pose fit); the rest pose is kept
+  σ — poses compared without the twists the field drops, which would make one pose look like
+  several; the best one initialises the field's pose (and the per-step pose fit); the rest pose is kept
   when nothing explains the target better.
 
 The ``paper`` preset (no skeleton-driven field) does not use it: there the pose only enters the
@@ -51,7 +56,7 @@ from ncflow.match.placement import surface_diracs
 from ncflow.match.pose_hypotheses import chain_hypotheses, exchangeable_limbs, exchanged, world_frames
 from ncflow.measures.varifold import Varifold, varifold_inner
 from ncflow.skeleton import Skeleton
-from ncflow.skeleton.dualquat import dq_rotation, dq_translation, quat_mul, quat_to_matrix
+from ncflow.skeleton.dualquat import dq_rotation, dq_translation, quat_mul, quat_normalize, quat_to_matrix
 from ncflow.skeleton.kinematics import Pose, bone_motions, forward_kinematics, joint_positions, rest_pose
 
 
@@ -107,6 +112,28 @@ def _completed(first: Pose, pooled: Pose) -> Pose:
     return Pose(
         jnp.concatenate([first.rotations, pooled.rotations[n:]]),
         jnp.concatenate([first.translation, pooled.translation[n:]]),
+    )
+
+
+def moving_diracs(skeleton: Skeleton, weights: Float[np.ndarray, "N B"], joint: int, tol: float) -> np.ndarray:
+    """Indices of the Diracs that a rotation of ``joint`` moves by more than ``tol`` × the motion of
+    its bones: those whose bone weights on the bones hanging from ``joint`` or below it sum above ``tol``.
+    """
+    parents = np.asarray(skeleton.parents)
+    below = np.zeros(skeleton.n_joints, bool)
+    below[joint] = True
+    for level in skeleton.levels:
+        for k in level:
+            below[k] |= parents[k] >= 0 and below[parents[k]]
+    return np.flatnonzero(np.asarray(weights)[:, below[parents[1:]]].sum(1) > tol)
+
+
+def _joined(*parts: tuple[Varifold, float]) -> Varifold:
+    """One measure of several, each weighted by its factor: ⟨X, Σ_k f_k Y_k⟩ is one kernel sum."""
+    return Varifold(
+        jnp.concatenate([p.centers for p, _ in parts]),
+        jnp.concatenate([p.normals for p, _ in parts]),
+        jnp.concatenate([f * p.weights for p, f in parts]),
     )
 
 
@@ -195,6 +222,7 @@ def search_poses(
     refined_fine: int = 3,
     distinct: float = 0.02,
     refine_steps: int = 100,
+    moving_tol: float = 1e-3,
     n_search: int = 600,
     n_refine: int = 1200,
     seed: int = 0,
@@ -221,6 +249,8 @@ def search_poses(
             ``sigmas_refine``, best scored at that scale first (the others keep their pose).
         distinct: two poses whose joints all lie within this distance are one.
         refine_steps: gradient steps per refinement scale.
+        moving_tol: in the discrete search, a Dirac whose bone weights below the joint tried sum to
+            at most this is held where the beam pose puts it (:func:`moving_diracs`).
         n_search: Diracs per surface in the discrete search.
         n_refine: Diracs per surface in the refinement.
         seed: seed of the face sampling.
@@ -263,18 +293,62 @@ def search_poses(
     score_fine = jax.jit(lambda poses, active, s, y: scores(poses, active, s, src_fine, y))
     score_coarse = jax.jit(lambda poses, active, s, y: scores(poses, active, s, src_coarse, y))
 
+    def hypotheses(rotations, translations, hyp, hyp_child, j, c, n_real, n_h):
+        """Every beam pose × every local rotation pair of joint j and its child c, and which are real."""
+        nb, nh = rotations.shape[0], hyp.shape[0]
+        rot = jnp.repeat(rotations, nh, axis=0)
+        rot = rot.at[:, j].set(quat_mul(rot[:, j], jnp.tile(hyp, (nb, 1))))
+        rot = rot.at[:, c].set(quat_mul(rot[:, c], jnp.tile(hyp_child, (nb, 1))))
+        active = jnp.repeat(jnp.arange(nb) < n_real, nh) & jnp.tile(jnp.arange(nh) < n_h, nb)
+        return Pose(rot, jnp.repeat(translations, nh, axis=0)), active
+
     @jax.jit
     def expand(rotations, translations, hyp, hyp_child, j, c, sigma, y, n_real, n_h):
         """Every beam pose × every local rotation pair of joint j and its child c, and their scores
         (+inf, not computed, past the ``n_real`` real beam rows and the ``n_h`` real hypotheses).
         """
-        nb, nh = rotations.shape[0], hyp.shape[0]
-        rot = jnp.repeat(rotations, nh, axis=0)
-        rot = rot.at[:, j].set(quat_mul(rot[:, j], jnp.tile(hyp, (nb, 1))))
-        rot = rot.at[:, c].set(quat_mul(rot[:, c], jnp.tile(hyp_child, (nb, 1))))
-        cand = Pose(rot, jnp.repeat(translations, nh, axis=0))
-        active = jnp.repeat(jnp.arange(nb) < n_real, nh) & jnp.tile(jnp.arange(nh) < n_h, nb)
+        cand, active = hypotheses(rotations, translations, hyp, hyp_child, j, c, n_real, n_h)
         return cand, scores(cand, active, sigma, src_coarse, y)
+
+    @jax.jit
+    def expand_part(rotations, translations, hyp, hyp_child, j, c, sigma, y, n_real, n_h, moving, mask):
+        """:func:`expand` where joint j moves only the Diracs ``moving`` (``mask`` 0 on padding): each
+        beam pose's other Diracs S are posed once, and a hypothesis adds the moved ones M to its
+        distance, ⟨S,S⟩ − 2⟨S,Y⟩ + ⟨M, 2S − 2Y + M⟩ + ⟨Y,Y⟩ (the same sum without the pairs of S that
+        do not change): O(|M|·N) a hypothesis instead of O(N²).
+        """
+        x, w = src_coarse
+        nb, nh = rotations.shape[0], hyp.shape[0]
+        cand, active = hypotheses(rotations, translations, hyp, hyp_child, j, c, n_real, n_h)
+        yy = varifold_inner(y, y, sigma, 0.5)
+        rest_w = x.weights.at[moving].set(0.0)
+        part, part_w = Varifold(x.centers[moving], x.normals[moving], x.weights[moving] * mask), w[moving]
+
+        def beam_static(pose):
+            xs = _skinned(skeleton, w, x, pose)
+            xs = Varifold(xs.centers, xs.normals, rest_w)
+            const = varifold_inner(xs, _joined((xs, 1.0), (y, -2.0)), sigma, 0.5)
+            return xs.centers, xs.normals, const
+
+        def nothing(pose):
+            return jnp.zeros_like(x.centers), jnp.zeros_like(x.normals), jnp.zeros((), dt)
+
+        centers, normals, const = jax.lax.map(
+            lambda pa: jax.lax.cond(pa[1], beam_static, nothing, pa[0]),
+            (Pose(rotations, translations), jnp.arange(nb) < n_real),
+        )
+
+        def one(mb):
+            pose, b = mb
+            m = _skinned(skeleton, part_w, part, pose)
+            others = _joined((Varifold(centers[b], normals[b], rest_w), 2.0), (y, -2.0), (m, 1.0))
+            return (const[b] + varifold_inner(m, others, sigma, 0.5) + yy) / yy
+
+        inf = jnp.asarray(jnp.inf, dt)
+        return cand, jax.lax.map(
+            lambda pa: jax.lax.cond(pa[1], one, lambda mb: inf, pa[0]),
+            ((cand, jnp.arange(nb * nh) // nh), active),
+        )
 
     opt = optax.adam(0.01)
 
@@ -311,7 +385,22 @@ def search_poses(
     def padded(q):
         return jnp.asarray(np.vstack([q, np.tile([1.0, 0.0, 0.0, 0.0], (n_hyp - q.shape[0], 1))]), dt)
 
-    searched = [(j, h.shape[0], padded(h), padded(hc), c) for j, h, hc, c in searched]
+    n_src = src_coarse[0].size
+
+    moving = {j: moving_diracs(skeleton, np.asarray(src_coarse[1]), j, moving_tol) for j, *_ in searched}
+    few = [m.size for m in moving.values() if 0 < m.size <= n_src // 2]
+    size = -(-max(few, default=0) // 32) * 32  # one size for all: one compiled program
+
+    def part(j):
+        """The Diracs joint j moves, padded to ``size``, or None where they are over half of all
+        (the full sum then costs as much).
+        """
+        idx = moving[j]
+        if not 0 < idx.size <= size:
+            return None
+        return jnp.asarray(np.resize(idx, size), jnp.int32), jnp.asarray(np.arange(size) < idx.size, dt)
+
+    searched = [(j, h.shape[0], padded(h), padded(hc), c, part(j)) for j, h, hc, c in searched]
     # limb exchanges go before the first joint of the limbs' level (their parent posed, they not yet)
     depth = skeleton.depth
     limbs = exchangeable_limbs(skeleton) if discrete else []
@@ -330,8 +419,9 @@ def search_poses(
                     beams, n_real, n_new = _exchange_step(skeleton, beams, n_real, step, sigma, score_coarse, y_coarse)
                     n_scored += n_new
                 continue
-            j, n_h, hyp, hyp_child, c = step
-            cand, s = expand(beams.rotations, beams.translation, hyp, hyp_child, j, c, sigma, y_coarse, n_real, n_h)
+            j, n_h, hyp, hyp_child, c, moved = step
+            args = (beams.rotations, beams.translation, hyp, hyp_child, j, c, sigma, y_coarse, n_real, n_h)
+            cand, s = expand(*args) if moved is None else expand_part(*args, *moved)
             s = np.array(s, np.float64)
             n_scored += n_real * n_h
             keep = np.argsort(s, kind="stable")[: min(beam, n_real * n_h)]
@@ -350,11 +440,16 @@ def search_poses(
 
     pose_joints = jax.jit(jax.vmap(lambda p: joint_positions(forward_kinematics(skeleton, p))))
 
-    @jax.jit
     def unit_swing(pose: Pose) -> Pose:
-        """The score cannot see the twist of one-child joints (the field moves by the swing alone): dropped."""
+        """The score cannot see the twist of one-child joints (the field moves by the swing alone):
+        dropped, and the rotations made unit as the kinematics does (a twist of 180° leaves a zero
+        swing, the identity).
+        """
         pose = swing_only(skeleton, pose)
-        return Pose(pose.rotations / jnp.linalg.norm(pose.rotations, axis=-1, keepdims=True), pose.translation)
+        return Pose(quat_normalize(pose.rotations), pose.translation)
+
+    # beams that differ only by such twists are one pose: the same score and, canonical, the same joints
+    canonical = jax.jit(jax.vmap(unit_swing))
 
     n_refined = min(refined, len(searches) * beam)
     results = []
@@ -364,6 +459,7 @@ def search_poses(
         found = [beam_search(float(sigma), bool(exchange), y_coarse) for sigma, exchange in searches]
         n_scored = 1 + sum(f[2] for f in found)
         pooled, valid = pool(found)
+        pooled = canonical(pooled)
         # the searches often agree: refine at most ``refined`` distinct poses, best scored first
         first = np.array(score_fine(pooled, valid, float(sigmas_refine[0]), y_fine), np.float64)
         picked = best_distinct(first[:-1], np.asarray(pose_joints(pooled))[:-1], n_refined, distinct)
@@ -391,6 +487,7 @@ def search_poses(
         if final[best] >= rest_score:
             results.append(PoseSearchResult(rest, rest_score, rest_score, n_scored))
             continue
-        pose = unit_swing(Pose(candidates.rotations[best], candidates.translation[best]))
+        pose = canonical(Pose(candidates.rotations[best : best + 1], candidates.translation[best : best + 1]))
+        pose = Pose(pose.rotations[0], pose.translation[0])
         results.append(PoseSearchResult(pose, float(final[best]), rest_score, n_scored))
     return results
