@@ -1,5 +1,7 @@
 """Articulated initialisation (ncflow.match.pose_search): search, not descent, for the target's pose."""
 
+import functools
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -165,11 +167,18 @@ def test_exchanged_limbs_take_each_others_bone_directions():
     np.testing.assert_allclose(again, before, atol=1e-5)
 
 
+@functools.cache
+def _stride_search():
+    """The legs' opposite strides and the pose search's result on them (shared by two tests)."""
+    skel, s, fs, t, ft, truth = _legs_problem((55.0, -55.0), (-55.0, 55.0))
+    res = search_pose(skel, s, fs, t, ft, skinning_width=0.05 * float(np.median(skel.bone_lengths)))
+    return (skel, s, fs, t, ft, truth), res
+
+
 def test_search_finds_legs_swung_the_other_way():
     """Source mid-stride (left leg forward, right back), target the opposite stride: every bone of
     the pose found within 10° of the target's."""
-    skel, s, fs, t, ft, truth = _legs_problem((55.0, -55.0), (-55.0, 55.0))
-    res = search_pose(skel, s, fs, t, ft, skinning_width=0.05 * float(np.median(skel.bone_lengths)))
+    (skel, *_, truth), res = _stride_search()
     found = np.asarray(joint_positions(forward_kinematics(skel, res.pose)), np.float64)
     err = _bone_angles(skel, found, truth)
     assert err.max() < 10.0, err
@@ -234,7 +243,7 @@ def test_moving_diracs_are_those_weighted_on_the_bones_below_the_joint():
 def test_scoring_only_the_moved_diracs_finds_the_pose_of_the_full_sums():
     """The discrete search sums only the Diracs a joint moves (each leg here); holding every Dirac
     as moving (moving_tol < 0: the full sums) finds the same pose and score."""
-    skel, s, fs, t, ft, _ = _legs_problem((55.0, -55.0), (-55.0, 55.0))
+    (skel, s, fs, t, ft, _), part = _stride_search()
     width = 0.05 * float(np.median(skel.bone_lengths))
     weights = np.asarray(
         skinning_weights(
@@ -245,7 +254,6 @@ def test_scoring_only_the_moved_diracs_finds_the_pose_of_the_full_sums():
         )
     )
     assert 0 < moving_diracs(skel, weights, 2, 1e-3).size < 0.5 * s.shape[0]  # the subset path is taken
-    part = search_pose(skel, s, fs, t, ft, skinning_width=width)
     full = search_pose(skel, s, fs, t, ft, skinning_width=width, moving_tol=-1.0)
     np.testing.assert_allclose(part.score, full.score, rtol=1e-5)
     np.testing.assert_allclose(np.asarray(part.pose.rotations), np.asarray(full.pose.rotations), atol=1e-4)
