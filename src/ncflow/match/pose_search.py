@@ -385,10 +385,9 @@ def search_poses(
     def padded(q):
         return jnp.asarray(np.vstack([q, np.tile([1.0, 0.0, 0.0, 0.0], (n_hyp - q.shape[0], 1))]), dt)
 
-    n_src = src_coarse[0].size
-
-    moving = {j: moving_diracs(skeleton, np.asarray(src_coarse[1]), j, moving_tol) for j, *_ in searched}
-    few = [m.size for m in moving.values() if 0 < m.size <= n_src // 2]
+    bone_weights = np.asarray(src_coarse[1])  # read back once, not once per joint
+    moving = {j: moving_diracs(skeleton, bone_weights, j, moving_tol) for j, *_ in searched}
+    few = [m.size for m in moving.values() if 0 < m.size <= src_coarse[0].size // 2]
     size = -(-max(few, default=0) // 32) * 32  # one size for all: one compiled program
 
     def part(j):
