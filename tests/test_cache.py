@@ -55,6 +55,15 @@ def test_cache_can_be_moved(tmp_path):
     assert len(_files(target)) > 0 and _files(tmp_path / "cache") == []
 
 
+def test_a_cache_folder_serves_from_another_path(tmp_path):
+    """The same programs compiled with the cache in two folders are filed under the same keys (the
+    folder's path is not part of them), so a folder copied or mounted elsewhere still serves.
+    """
+    first, second = _run(tmp_path, str(tmp_path / "one")), _run(tmp_path, str(tmp_path / "two" / "deeper"))
+    names = [sorted(os.path.basename(f) for f in _files(folder) if "-cache" in f) for folder in (first, second)]
+    assert len(names[0]) >= 37 and names[0] == names[1]
+
+
 def test_the_tests_run_with_the_jax_settings_users_get():
     import jax
 

@@ -8,7 +8,10 @@ its compilation (the ``jit`` executables of the first run are read back from dis
 ``$NCFLOW_JIT_CACHE`` or the ``jit_cache`` setting move or disable the compilation cache: ``auto``
 (the default: ``<cache folder>/jax``, unless JAX's own ``jax_compilation_cache_dir`` is already
 set, which is then respected), ``none`` (off) or a folder. The environment variable wins over the
-setting, so a cluster job can turn it off without editing configurations.
+setting, so a cluster job can turn it off without editing configurations. On the CPU a cache folder
+can be copied or mounted at another path and still serve (JAX writes the path of XLA's GPU
+autotuning cache, which sits in the folder, into every key; ncflow turns that cache off on the CPU,
+where it tunes nothing), so a cluster's nodes or a container image can share one warm folder.
 
 A cached executable is found by the text of the program it compiles. JAX writes the arrays a
 jitted function closes over (the source, the skeleton, the tissue centroids) into that text by
@@ -89,6 +92,10 @@ def configure_compilation_cache(setting: str = "auto") -> Path | None:
         return None
     folder.mkdir(parents=True, exist_ok=True)
     jax.config.update("jax_enable_compilation_cache", True)
+    if "JAX_PERSISTENT_CACHE_ENABLE_XLA_CACHES" not in os.environ and jax.default_backend() == "cpu":
+        # XLA's GPU autotuning cache sits in the folder and its path enters every key: off on the
+        # CPU (it has nothing to tune), so a cache folder copied or mounted elsewhere still serves
+        jax.config.update("jax_persistent_cache_enable_xla_caches", "none")
     if jax.config.jax_compilation_cache_dir != str(folder):
         jax.config.update("jax_compilation_cache_dir", str(folder))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
