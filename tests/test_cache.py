@@ -110,7 +110,7 @@ SHARED = textwrap.dedent(
     folder = sys.argv[1]
     sets = ["flow.width=8", "flow.depth=1", "flow.gso_width=4", "flow.gso_depth=1", "flow.n_times=3",
             "sampling.bone_samples=5", "sampling.surface_edges=0", "weights.surface=0", "weights.tissue=0",
-            "compress=none", "placement=none", "pose_search=false", f"jit_cache={folder}"]
+            "compress=120", "placement=none", "pose_search=false", f"jit_cache={folder}"]
     cfg = scale_steps(apply_overrides(preset("fast"), sets), 2)
     # two characters of other mesh sizes in the same size buckets (86 and 83 vertices: 88 padded; 252 and
     # 243 edges: 256; 168 and 162 faces: 176), other proportions, another middle joint, other bends
@@ -125,16 +125,19 @@ SHARED = textwrap.dedent(
         print("MODE", m.problem.skinning_weights["mode"])
         print("STEPS", sorted(f for f in os.listdir(folder) if f.startswith("jit_step-")))
         print("OUTPUTS", sorted(f for f in os.listdir(folder) if f.startswith("jit_output_")))
+        target = ("jit_target_measure-", "jit_kernel_matvec-", "jit_kernel_self_sum-")
+        print("TARGET", sorted(f for f in os.listdir(folder) if f.startswith(target)))
     """
 )
 
 
 def test_a_second_character_of_similar_size_reuses_the_compiled_training_step(tmp_path):
     """Two sources of other mesh sizes in the same size buckets, with different proportions, skeletons
-    (so bone-weight widths) and targets: the second match finds its training step and its two output
-    programs in the compilation cache (issue 17's "pairs of similar size share compiled executables"),
-    because the arrays are arguments of the programs (:func:`ncflow.cache.share_executables`), not
-    constants written into them, and the source is padded to its size bucket (:class:`ncflow.match.objective.Arrays`).
+    (so bone-weight widths) and targets: the second match finds its training step, its two output
+    programs and its target's measures and compression in the compilation cache (issue 17's "pairs
+    of similar size share compiled executables"), because the arrays are arguments of the programs
+    (:func:`ncflow.cache.share_executables`), not constants written into them, and the source and
+    the target are padded to their size buckets (:func:`ncflow.buckets.pad_mesh`).
     """
     env = {k: v for k, v in os.environ.items() if not k.startswith(("NCFLOW_", "JAX_"))}
     env["NCFLOW_CACHE_DIR"] = str(tmp_path / "cache")
@@ -150,6 +153,10 @@ def test_a_second_character_of_similar_size_reuses_the_compiled_training_step(tm
     # and the output phase's two programs (the flow of the padded source with the bone samples, the refit)
     first, second = [line for line in lines if line.startswith("OUTPUTS ")]
     assert first.count("jit_output_") == 2 and second == first
+    # and the target's: its two measures (of the mesh padded to its buckets) and their compression
+    # (each Normal Cycle and Varifold, 168 and 162 faces, 252 and 243 edges, compressed to 120 points)
+    first, second = [line for line in lines if line.startswith("TARGET ")]
+    assert first.count("jit_target_measure-") == 2 and first.count("jit_kernel_matvec-") >= 2 and second == first
 
 
 def test_jit_run_once_gives_what_filter_jit_gives():

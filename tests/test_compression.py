@@ -105,3 +105,31 @@ def test_blocked_leverage_scores_are_each_blocks_dense_scores():
         k = np.exp(-((z[idx, None] - z[None, idx]) ** 2).sum(-1))
         dense = np.diag(k @ np.linalg.inv(k + 0.2 * np.eye(idx.size)))
         np.testing.assert_allclose(scores[idx], dense, rtol=1e-8)
+
+
+@pytest.mark.parametrize("metric", ["normal_cycles", "varifold"])
+def test_rows_of_zero_weight_change_nothing(metric):
+    """A mesh padded to its size buckets (degenerate faces and edges, boundary rows without
+    neighbours: rows of zero weight) compresses to the same representatives, at their padded rows,
+    with the same weights and reported error as the mesh itself."""
+    from ncflow.buckets import pad_mesh
+
+    v, f = sphere(3)
+    f = f[np.linalg.norm(v[f].mean(1) - [0.0, 0.0, 1.0], axis=1) > 0.5]  # a hole: boundary rows too
+    topo = mesh_topology(f, v.shape[0])
+    pv, ptopo = pad_mesh(v, topo)
+    if metric == "varifold":
+        y, yp = varifold(v, f), varifold(pv, ptopo.faces)
+        a, ra = compress_varifold(y, 300, sigma=0.2, seed=3)
+        b, rb = compress_varifold(yp, 300, sigma=0.2, seed=3)
+    else:
+        y, yp = normal_cycle(v, topo), normal_cycle(pv, ptopo)
+        a, ra = compress_normal_cycle(y, 300, sigma=0.2, seed=3)
+        b, rb = compress_normal_cycle(yp, 300, sigma=0.2, seed=3)
+    assert yp.size > y.size and ra.n == rb.n == y.size
+    # the real rows keep their order among the padded ones: the k-th row of weight is real row k
+    live = np.flatnonzero(np.any(np.asarray(yp.weights).reshape(yp.size, -1) != 0, axis=1))
+    np.testing.assert_array_equal(live[ra.indices], rb.indices)
+    np.testing.assert_allclose(np.asarray(b.centers), np.asarray(a.centers), atol=1e-6)
+    np.testing.assert_allclose(np.asarray(b.weights), np.asarray(a.weights), rtol=1e-3, atol=1e-6)
+    assert rb.relative_error == pytest.approx(ra.relative_error, rel=1e-3, abs=1e-7)

@@ -15,6 +15,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray, PyTree
 
+from ncflow.geometry.topology import Topology, pad_topology
+
 MESH_PER_OCTAVE = 8
 """Size buckets per doubling for the arrays of a mesh (vertices, edges, faces, measures, flowed
 points): at most 12.5 % of padding."""
@@ -69,3 +71,18 @@ def pad_points(points: Float[ArrayLike, "N 3"]) -> Float[Array, "M 3"]:
     if size == n:
         return points
     return jnp.concatenate([points, jnp.broadcast_to(points[:1], (size - n, points.shape[1]))])
+
+
+def pad_mesh(vertices: Float[ArrayLike, "V 3"], topology: Topology) -> tuple[Float[Array, "W 3"], Topology]:
+    """A mesh padded to its size buckets (:data:`MESH_PER_OCTAVE` per doubling): the vertices by
+    :func:`pad_points`, the faces, edges and boundary vertices by
+    :func:`~ncflow.geometry.topology.pad_topology` (rows of zero weight in every measure, so the
+    padded mesh's Varifold and Normal Cycle are the mesh's). The real rows come first in each table.
+    """
+
+    def grow(n):
+        return bucket(n, per_octave=MESH_PER_OCTAVE)
+
+    n_boundary = grow(topology.boundary_vertices.size) if topology.has_boundary else 0
+    padded = pad_topology(topology, grow(topology.faces.shape[0]), grow(topology.n_edges), n_boundary)
+    return pad_points(vertices), padded

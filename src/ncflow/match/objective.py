@@ -31,9 +31,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
-from ncflow.buckets import MESH_PER_OCTAVE, bucket, pad_points
+from ncflow.buckets import bucket, pad_mesh
 from ncflow.flow import GSONet, integrate, time_grid
-from ncflow.geometry.topology import Topology, pad_topology
+from ncflow.geometry.topology import Topology
 from ncflow.losses import (
     bone_constraints,
     edge_points,
@@ -143,13 +143,7 @@ class Arrays:
         topo, v = problem.source_topology, np.asarray(problem.working.vertices)
         nv, ne = v.shape[0], topo.n_edges
         if pad:
-
-            def grow(n):
-                return bucket(n, per_octave=MESH_PER_OCTAVE)
-
-            n_boundary = grow(topo.boundary_vertices.size) if topo.has_boundary else 0
-            topo = pad_topology(topo, grow(topo.faces.shape[0]), grow(ne), n_boundary)
-            v = pad_points(v)
+            v, topo = pad_mesh(v, topo)
         return cls(
             source=jnp.asarray(v, DTYPE),
             topology=topo,

@@ -1,8 +1,8 @@
 """Target measures per length scale: the target's Varifold / Normal Cycle, compressed once per
 (metric, σ, σ_n) when larger than ``config.compress`` (Algorithm 2; DESIGN.md "Compression"), with
-its self-energy ⟨Y, Y⟩ that normalises the data term. A target left uncompressed is padded to a
-size bucket with rows of zero weight (:func:`ncflow.buckets.pad_rows`), so targets of similar size
-share the compiled step.
+its self-energy ⟨Y, Y⟩ that normalises the data term. The target mesh is padded to its size
+buckets first (:func:`ncflow.buckets.pad_mesh`: rows of zero weight in its measures), so targets of
+similar size share the compiled programs of their measures, their compression and the training step.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ncflow.buckets import MESH_PER_OCTAVE, bucket, pad_rows
+from ncflow.buckets import pad_mesh
 from ncflow.errors import InputError
 from ncflow.match.prepare import DTYPE, Problem
 from ncflow.match.stages import Stage
@@ -31,23 +31,26 @@ def target_measures(
         InputError: the target has no measurable surface (a non-finite or zero self-energy).
     """
     targets: dict[TargetKey, tuple[Any, float, dict]] = {}
-    ty = jnp.asarray(problem.target_vertices, DTYPE)
+    ty, topology = pad_mesh(jnp.asarray(problem.target_vertices, DTYPE), problem.target_topology)
     full = {}
     for st in stages:
         key = (st.metric, st.sigma, st.phase_config.sigma_normal)
         if key in targets:
             continue
         metric = get_metric(st.metric)
+        n = _rows(problem, metric)
         if st.metric not in full:  # jitted: one program, not one per operation
-            full[st.metric] = jax.jit(lambda v, m=metric: m.represent(v, problem.target_topology))(ty)
-        y = full[st.metric]
-        report = {"n": int(y.size), "m": int(y.size), "relative_error": 0.0, "seconds": 0.0}
-        if compressed(y.size, config):
+
+            def target_measure(v, m=metric):
+                return m.represent(v, topology)
+
+            full[st.metric] = jax.jit(target_measure)(ty)
+        y = full[st.metric]  # the padded mesh's measure: the target's, with rows of zero weight
+        report = {"n": n, "m": n, "relative_error": 0.0, "seconds": 0.0}
+        if compressed(n, config):
             message(f"compressing the target ({st.metric}, sigma={st.sigma:g}) to {config.compress} points ...")
             y, rep = metric.compress(y, config.compress, st.sigma, st.phase_config.sigma_normal, config.seed)
             report = rep.to_dict()
-        else:  # compressed targets all have ``compress`` rows; the others are padded to a size bucket
-            y = jax.jit(pad_rows, static_argnums=1)(y, bucket(y.size, per_octave=MESH_PER_OCTAVE))
         yy = float(jax.jit(lambda y, s, n, m=metric: m.inner(y, y, s, n))(y, st.sigma, st.phase_config.sigma_normal))
         if not np.isfinite(yy) or yy <= 0:
             raise InputError("the target has no measurable surface (zero self-energy)", problem.target.name)
@@ -67,12 +70,25 @@ def target_stand_ins(problem: Problem, stages: list[Stage], config) -> dict[Targ
     step ahead (:mod:`ncflow.match.ahead`).
     """
     out: dict[TargetKey, tuple[Any, float, dict]] = {}
-    vertices = jax.ShapeDtypeStruct(problem.target_vertices.shape, DTYPE)
     for st in stages:
         metric = get_metric(st.metric)
-        shape = jax.eval_shape(lambda v, m=metric: m.represent(v, problem.target_topology), vertices)
-        n = shape.centers.shape[0]
-        rows = config.compress if compressed(n, config) else bucket(n, per_octave=MESH_PER_OCTAVE)
+        shape = _represented(problem, metric, padded=True)
+        rows = config.compress if compressed(_rows(problem, metric), config) else shape.centers.shape[0]
         y = jax.tree_util.tree_map(lambda a, r=rows: jnp.zeros((r, *a.shape[1:]), a.dtype), shape)
         out[(st.metric, st.sigma, st.phase_config.sigma_normal)] = (y, 1.0, {})
     return out
+
+
+def _represented(problem: Problem, metric, padded: bool):
+    """The shapes of the target's measure in ``metric`` (nothing computed), of the mesh padded to its
+    size buckets (:func:`ncflow.buckets.pad_mesh`) or as it is.
+    """
+    vertices, topology = problem.target_vertices, problem.target_topology
+    if padded:
+        vertices, topology = pad_mesh(np.zeros((vertices.shape[0], 3), DTYPE), topology)
+    return jax.eval_shape(lambda v: metric.represent(v, topology), jax.ShapeDtypeStruct((vertices.shape[0], 3), DTYPE))
+
+
+def _rows(problem: Problem, metric) -> int:
+    """The number of points of the target's measure in ``metric``, padding not counted."""
+    return int(_represented(problem, metric, padded=False).centers.shape[0])

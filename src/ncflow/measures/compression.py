@@ -10,6 +10,9 @@ is exp(−‖z − z'‖²)) is replaced by μ_c = Σ_{c ∈ C} k(·, z_c) β_c 
 3. β = (K_CC + αI)⁻¹ K_CN W, the regularised projection of μ onto span{k(·, z_c)} (float64
    Cholesky solve; α = ``jitter`` since every K_ii = 1).
 
+Only the atoms of nonzero weight are candidates: rows of zero weight (a mesh padded to a size
+bucket has them) are not part of the measure.
+
 The relative error reported is the RKHS one, ‖μ − μ_c‖² / ‖μ‖², i.e. d(Y, Y_c)/⟨Y, Y⟩ in the
 metric being compressed. Compression depends on the kernel width: compress once per σ.
 """
@@ -19,6 +22,7 @@ from __future__ import annotations
 import dataclasses
 import time
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.linalg
@@ -35,7 +39,7 @@ class CompressionReport:
     """What a compression did and what it cost.
 
     Attributes:
-        n: points before compression.
+        n: points of nonzero weight before compression (:func:`carrying_mass`).
         m: representatives kept.
         relative_error: ‖μ − μ_c‖²/‖μ‖² in the compressed metric (NaN if not computed: it needs
             the full measure's self-energy, N² kernel terms, so it is skipped above
@@ -55,6 +59,10 @@ class CompressionReport:
         rel = self.relative_error if np.isfinite(self.relative_error) else None
         return {"n": self.n, "m": self.m, "relative_error": rel, "seconds": self.seconds}
 
+
+# one compiled program per shape (called eagerly, each blocked scan would be traced and compiled anew)
+_matvec = jax.jit(kernel_matvec, static_argnames="block")
+_self_sum = jax.jit(kernel_self_sum, static_argnames="block")
 
 ERROR_MAX_POINTS = 50_000  # above this the reported error (N² kernel terms) would cost more than the match
 
@@ -99,26 +107,43 @@ def leverage_scores(
     return np.clip(scores, 1e-12, None)
 
 
+def carrying_mass(w: Float[Array, "N K"]) -> np.ndarray:
+    """Indices of the rows of a measure's weights (N, K) that are not all zero: the atoms the
+    measure has. A mesh padded to a size bucket (:func:`ncflow.buckets.pad_mesh`) adds rows of zero
+    weight, which no kernel sum sees and compression does not pick.
+    """
+    return np.flatnonzero(np.any(np.asarray(w) != 0, axis=1))
+
+
 def _nystrom(
-    z: Array, w: Array, m: int, seed: int, ridge: float, jitter: float, block_size: int | None, report_error: bool
+    z: Array,
+    w: Array,
+    live: np.ndarray,
+    m: int,
+    seed: int,
+    ridge: float,
+    jitter: float,
+    block_size: int | None,
+    report_error: bool,
 ) -> tuple[np.ndarray, np.ndarray, float, float]:
     t0 = time.perf_counter()
-    z_np = np.asarray(z, dtype=np.float64)
+    z_np = np.asarray(z, dtype=np.float64)[live]
     n = z_np.shape[0]
     scores = leverage_scores(z_np, ridge=ridge, block_size=block_size, seed=seed)
     rng = np.random.default_rng([seed, 1])
-    idx = np.sort(rng.choice(n, size=m, replace=False, p=scores / scores.sum()))
-    zc = jnp.asarray(z_np[idx], dtype=z.dtype)
-    rhs = np.asarray(kernel_matvec(zc, z, w), dtype=np.float64)  # K_CN W, (m, K)
-    kcc = _gram(z_np[idx], z_np[idx])
+    pick = np.sort(rng.choice(n, size=m, replace=False, p=scores / scores.sum()))
+    idx = live[pick]
+    zc = jnp.asarray(z_np[pick], dtype=z.dtype)
+    rhs = np.asarray(_matvec(zc, z, w), dtype=np.float64)  # K_CN W, (m, K); zero-weight rows add nothing
+    kcc = _gram(z_np[pick], z_np[pick])
     kcc[np.diag_indices_from(kcc)] += jitter
     factor = scipy.linalg.cho_factor(kcc.T, overwrite_a=True, check_finite=False)  # F-ordered view: no copy
     beta = scipy.linalg.cho_solve(factor, rhs, check_finite=False)
     del factor
     rel = float("nan")
     if report_error and n <= ERROR_MAX_POINTS:
-        kcc = _gram(z_np[idx], z_np[idx])
-        yy = float(kernel_self_sum(z, w))
+        kcc = _gram(z_np[pick], z_np[pick])
+        yy = float(_self_sum(z, w))
         cross = float(np.sum(beta * rhs))
         cc = float(np.sum(beta * (kcc @ beta)))
         rel = (yy - 2.0 * cross + cc) / yy if yy > 0 else 0.0
@@ -147,14 +172,16 @@ def compress_varifold(
 
     Returns:
         (the compressed varifold: representatives' centres and normals with weights β,
-        the :class:`CompressionReport`). If m ≥ N the varifold is returned unchanged.
+        the :class:`CompressionReport`). If m ≥ N, the number of faces of nonzero weight
+        (:func:`carrying_mass`), the varifold is returned unchanged.
     """
-    n = y.size
+    z, w = varifold_features(y, sigma, sigma_normal)
+    live = carrying_mass(w)
+    n = live.size
     m = _check_m(m, n)
     if m >= n:
-        return y, CompressionReport(n, n, 0.0, 0.0, np.arange(n))
-    z, w = varifold_features(y, sigma, sigma_normal)
-    idx, beta, rel, secs = _nystrom(z, w, m, seed, ridge, jitter, block_size, report_error)
+        return y, CompressionReport(n, n, 0.0, 0.0, live)
+    idx, beta, rel, secs = _nystrom(z, w, live, m, seed, ridge, jitter, block_size, report_error)
     normals = np.asarray(y.normals)[idx]
     scale = np.exp((normals * normals).sum(1) / (4.0 * sigma_normal**2))  # undo the feature weight factor
     dtype = y.centers.dtype
@@ -180,14 +207,16 @@ def compress_normal_cycle(
     """Compress a Normal Cycle to m representative points for kernel width σ (Algorithm 2).
 
     Leverage scores use the positional kernel; β (m, 12) carries the edge and boundary terms.
-    If m ≥ N the measure is returned unchanged.
+    If m ≥ N, the number of points of nonzero weight (:func:`carrying_mass`), the measure is
+    returned unchanged.
     """
-    n = y.size
+    z, w = _nc_features(y, sigma)
+    live = carrying_mass(w)
+    n = live.size
     m = _check_m(m, n)
     if m >= n:
-        return y, CompressionReport(n, n, 0.0, 0.0, np.arange(n))
-    z, w = _nc_features(y, sigma)
-    idx, beta, rel, secs = _nystrom(z, w, m, seed, ridge, jitter, block_size, report_error)
+        return y, CompressionReport(n, n, 0.0, 0.0, live)
+    idx, beta, rel, secs = _nystrom(z, w, live, m, seed, ridge, jitter, block_size, report_error)
     dtype = y.centers.dtype
     out = NormalCycle(centers=jnp.asarray(np.asarray(y.centers)[idx], dtype), weights=jnp.asarray(beta, dtype))
     return out, CompressionReport(n, m, rel, secs, idx)
