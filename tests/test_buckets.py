@@ -125,7 +125,7 @@ def test_padded_training_objective_equals_the_unpadded_one():
         def loss(p, arrays=arrays, s=s):
             return stage_objective(p, arrays, s, st, target, yy, jnp.ones((2, 2), DTYPE), jax.random.key(5))
 
-        (total, aux), grads = eqx.filter_value_and_grad(loss, has_aux=True)(params)
+        (total, aux), grads = eqx.filter_jit(eqx.filter_value_and_grad(loss, has_aux=True))(params)
         results.append((float(total), float(aux["surface"]), float(aux["data"]), grads))
         if pad:
             assert arrays.source.shape[0] == 88 and arrays.n_vertices == 86 and arrays.edges.shape[0] == 256

@@ -160,10 +160,14 @@ def test_skinned_flow_matches_an_independent_ode_solution(mode):
     )
     assert np.all(np.asarray(rest).max(1) < 0.95)  # the test exercises blending
 
+    # compiled once: the adaptive solver calls them thousands of times
+    motion = jax.jit(lambda t: bone_velocities(skel, field.swing_pose(), t))
+    weights = jax.jit(lambda x, t: field.weights(x, t))
+
     def rhs(t, y):
         x = y.reshape(-1, 3)
-        r, c, dr, dc = (np.asarray(a) for a in bone_velocities(skel, field.swing_pose(), t))
-        w = np.asarray(rest) if mode == "start" else np.asarray(field.weights(jnp.asarray(x), t))
+        r, c, dr, dc = (np.asarray(a) for a in motion(t))
+        w = np.asarray(rest) if mode == "start" else np.asarray(weights(jnp.asarray(x), t))
         xi = np.einsum("bij,bkj,nbk->nbi", dr, r, x[:, None, :] - c[None]) + dc[None]  # (N, B, 3) bone velocities
         return np.einsum("nb,nbi->ni", w, xi).reshape(-1)
 
