@@ -60,7 +60,8 @@ def test_target_stand_ins_have_the_shapes_of_the_target_measures(compress):
             (a.shape, a.dtype) for a in jax.tree_util.tree_leaves(y)
         ]
         rows = y.centers.shape[0]
-        assert rows == 150 if compress == "150" else rows >= y.size
+        unpadded = tgt.faces.shape[0] if key[0] == "varifold" else problem.target_topology.n_edges
+        assert rows == 150 if compress == "150" else rows > unpadded  # padded to the bucket above
     # the problem handed over before the search is the final one but for the placement
     assert seen[0].working is problem.working and seen[0].centroids is problem.centroids
 

@@ -24,6 +24,7 @@ SCRIPT = textwrap.dedent(
 def _run(tmp_path, setting, env_value=None):
     env = {k: v for k, v in os.environ.items() if not k.startswith(("NCFLOW_", "JAX_"))}
     env["NCFLOW_CACHE_DIR"] = str(tmp_path / "cache")
+    env["JAX_PLATFORMS"] = "cpu"  # the CPU's keys (on a GPU the autotuning cache's path stays in them)
     if env_value is not None:
         env["NCFLOW_JIT_CACHE"] = env_value
     out = subprocess.run([sys.executable, "-c", SCRIPT, setting], env=env, capture_output=True, text=True, timeout=300)

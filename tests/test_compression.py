@@ -133,3 +133,24 @@ def test_rows_of_zero_weight_change_nothing(metric):
     np.testing.assert_allclose(np.asarray(b.centers), np.asarray(a.centers), atol=1e-6)
     np.testing.assert_allclose(np.asarray(b.weights), np.asarray(a.weights), rtol=1e-3, atol=1e-6)
     assert rb.relative_error == pytest.approx(ra.relative_error, rel=1e-3, abs=1e-7)
+
+
+def test_a_flat_measure_with_fewer_atoms_than_m_keeps_them_in_m_rows():
+    """A box's Normal Cycle weighs nothing on its flat faces (the two normals of an edge cancel):
+    with at most m rows of weight but more than m rows, compression keeps those rows exactly and
+    returns m rows (zero-weight rows after them), so a compressed target's shape is always m rows.
+    """
+    from ncflow.synthetic.shapes import make_shape
+
+    v, f = make_shape("box", 20)
+    y = normal_cycle(v, mesh_topology(f))
+    w = np.asarray(y.weights)
+    live = np.flatnonzero(np.any(w != 0, axis=1))
+    m = 2 * live.size
+    assert y.size > m  # most rows weigh nothing
+    c, rep = compress_normal_cycle(y, m, sigma=0.2)
+    assert c.centers.shape[0] == m and rep.n == rep.m == live.size and rep.relative_error == 0.0
+    np.testing.assert_array_equal(rep.indices, live)
+    np.testing.assert_array_equal(np.asarray(c.weights)[: live.size], w[live])
+    assert not np.any(np.asarray(c.weights)[live.size :])
+    assert float(normal_cycle_inner(c, c, 0.2)) == pytest.approx(float(normal_cycle_inner(y, y, 0.2)), rel=1e-9)

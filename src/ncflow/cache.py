@@ -92,7 +92,11 @@ def configure_compilation_cache(setting: str = "auto") -> Path | None:
         return None
     folder.mkdir(parents=True, exist_ok=True)
     jax.config.update("jax_enable_compilation_cache", True)
-    if "JAX_PERSISTENT_CACHE_ENABLE_XLA_CACHES" not in os.environ and jax.default_backend() == "cpu":
+    if (
+        hasattr(jax.config, "jax_persistent_cache_enable_xla_caches")  # JAX ≥ 0.4.3x; before it, no path
+        and "JAX_PERSISTENT_CACHE_ENABLE_XLA_CACHES" not in os.environ
+        and jax.default_backend() == "cpu"
+    ):
         # XLA's GPU autotuning cache sits in the folder and its path enters every key: off on the
         # CPU (it has nothing to tune), so a cache folder copied or mounted elsewhere still serves
         jax.config.update("jax_persistent_cache_enable_xla_caches", "none")

@@ -28,6 +28,7 @@ import numpy as np
 import scipy.linalg
 from jaxtyping import Array, Float
 
+from ncflow.buckets import pad_rows
 from ncflow.errors import InputError
 from ncflow.measures.kernels import kernel_matvec, kernel_self_sum
 from ncflow.measures.normal_cycles import NormalCycle, _nc_features
@@ -150,6 +151,18 @@ def _nystrom(
     return idx, beta, rel, time.perf_counter() - t0
 
 
+def _exact(y, live: np.ndarray, m: int):
+    """A measure with at most ``m`` points of nonzero weight (``live``), kept exactly: as it is when it
+    has at most ``m`` rows, else its rows of nonzero weight followed by rows of zero weight up to
+    ``m`` rows, so that a compressed measure always has min(m, rows) rows (a flat region's Normal
+    Cycle rows weigh nothing; a compressed target's shape is known before it is built).
+    """
+    report = CompressionReport(live.size, live.size, 0.0, 0.0, live)
+    if y.size <= m:
+        return y, report
+    return pad_rows(jax.tree_util.tree_map(lambda a: a[live], y), m), report
+
+
 def _check_m(m: int, n: int) -> int:
     if int(m) < 1:
         raise InputError(f"compressed size m must be at least 1 (got {m})")
@@ -173,14 +186,15 @@ def compress_varifold(
     Returns:
         (the compressed varifold: representatives' centres and normals with weights β,
         the :class:`CompressionReport`). If m ≥ N, the number of faces of nonzero weight
-        (:func:`carrying_mass`), the varifold is returned unchanged.
+        (:func:`carrying_mass`), the varifold is kept exactly: as it is if it has at most m rows,
+        else its N faces of nonzero weight padded with rows of zero weight to m rows.
     """
     z, w = varifold_features(y, sigma, sigma_normal)
     live = carrying_mass(w)
     n = live.size
-    m = _check_m(m, n)
-    if m >= n:
-        return y, CompressionReport(n, n, 0.0, 0.0, live)
+    if _check_m(m, n) >= n:
+        return _exact(y, live, int(m))
+    m = int(m)
     idx, beta, rel, secs = _nystrom(z, w, live, m, seed, ridge, jitter, block_size, report_error)
     normals = np.asarray(y.normals)[idx]
     scale = np.exp((normals * normals).sum(1) / (4.0 * sigma_normal**2))  # undo the feature weight factor
@@ -208,14 +222,15 @@ def compress_normal_cycle(
 
     Leverage scores use the positional kernel; β (m, 12) carries the edge and boundary terms.
     If m ≥ N, the number of points of nonzero weight (:func:`carrying_mass`), the measure is
-    returned unchanged.
+    kept exactly: as it is if it has at most m rows, else its N points of nonzero weight padded
+    with rows of zero weight to m rows.
     """
     z, w = _nc_features(y, sigma)
     live = carrying_mass(w)
     n = live.size
-    m = _check_m(m, n)
-    if m >= n:
-        return y, CompressionReport(n, n, 0.0, 0.0, live)
+    if _check_m(m, n) >= n:
+        return _exact(y, live, int(m))
+    m = int(m)
     idx, beta, rel, secs = _nystrom(z, w, live, m, seed, ridge, jitter, block_size, report_error)
     dtype = y.centers.dtype
     out = NormalCycle(centers=jnp.asarray(np.asarray(y.centers)[idx], dtype), weights=jnp.asarray(beta, dtype))
