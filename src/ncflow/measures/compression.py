@@ -163,6 +163,20 @@ def _exact(y, live: np.ndarray, m: int):
     return pad_rows(jax.tree_util.tree_map(lambda a: a[live], y), m), report
 
 
+def _compress(y, z, w, m, seed, ridge, jitter, block_size, report_error):
+    """Both metrics' compression of ``y`` (features z, weights w): (the measure kept exactly, None,
+    its report) when it has at most ``m`` points of nonzero weight (:func:`_exact`), else (None, β
+    of the representatives, the report whose ``indices`` are the representatives' rows).
+    """
+    live = carrying_mass(w)
+    n = live.size
+    if _check_m(m, n) >= n:
+        kept, report = _exact(y, live, int(m))
+        return kept, None, report
+    idx, beta, rel, secs = _nystrom(z, w, live, int(m), seed, ridge, jitter, block_size, report_error)
+    return None, beta, CompressionReport(n, int(m), rel, secs, idx)
+
+
 def _check_m(m: int, n: int) -> int:
     if int(m) < 1:
         raise InputError(f"compressed size m must be at least 1 (got {m})")
@@ -189,13 +203,12 @@ def compress_varifold(
         (:func:`carrying_mass`), the varifold is kept exactly: as it is if it has at most m rows,
         else its N faces of nonzero weight padded with rows of zero weight to m rows.
     """
-    z, w = varifold_features(y, sigma, sigma_normal)
-    live = carrying_mass(w)
-    n = live.size
-    if _check_m(m, n) >= n:
-        return _exact(y, live, int(m))
-    m = int(m)
-    idx, beta, rel, secs = _nystrom(z, w, live, m, seed, ridge, jitter, block_size, report_error)
+    kept, beta, report = _compress(
+        y, *varifold_features(y, sigma, sigma_normal), m, seed, ridge, jitter, block_size, report_error
+    )
+    if kept is not None:
+        return kept, report
+    idx = report.indices
     normals = np.asarray(y.normals)[idx]
     scale = np.exp((normals * normals).sum(1) / (4.0 * sigma_normal**2))  # undo the feature weight factor
     dtype = y.centers.dtype
@@ -204,7 +217,7 @@ def compress_varifold(
         normals=jnp.asarray(normals, dtype),
         weights=jnp.asarray(beta[:, 0] / scale, dtype),
     )
-    return out, CompressionReport(n, m, rel, secs, idx)
+    return out, report
 
 
 def compress_normal_cycle(
@@ -225,13 +238,9 @@ def compress_normal_cycle(
     kept exactly: as it is if it has at most m rows, else its N points of nonzero weight padded
     with rows of zero weight to m rows.
     """
-    z, w = _nc_features(y, sigma)
-    live = carrying_mass(w)
-    n = live.size
-    if _check_m(m, n) >= n:
-        return _exact(y, live, int(m))
-    m = int(m)
-    idx, beta, rel, secs = _nystrom(z, w, live, m, seed, ridge, jitter, block_size, report_error)
+    kept, beta, report = _compress(y, *_nc_features(y, sigma), m, seed, ridge, jitter, block_size, report_error)
+    if kept is not None:
+        return kept, report
     dtype = y.centers.dtype
-    out = NormalCycle(centers=jnp.asarray(np.asarray(y.centers)[idx], dtype), weights=jnp.asarray(beta, dtype))
-    return out, CompressionReport(n, m, rel, secs, idx)
+    centers = jnp.asarray(np.asarray(y.centers)[report.indices], dtype)
+    return NormalCycle(centers=centers, weights=jnp.asarray(beta, dtype)), report
