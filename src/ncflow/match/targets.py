@@ -38,14 +38,13 @@ def target_measures(
         if key in targets:
             continue
         metric = get_metric(st.metric)
-        n = _rows(problem, metric)
         if st.metric not in full:  # jitted: one program, not one per operation
 
             def target_measure(v, m=metric):
                 return m.represent(v, topology)
 
-            full[st.metric] = jax.jit(target_measure)(ty)
-        y = full[st.metric]  # the padded mesh's measure: the target's, with rows of zero weight
+            full[st.metric] = jax.jit(target_measure)(ty), _rows(problem, metric)
+        y, n = full[st.metric]  # the padded mesh's measure (the target's, with rows of zero weight), its real rows
         report = {"n": n, "m": n, "relative_error": 0.0, "seconds": 0.0}
         if compressed(n, config):
             message(f"compressing the target ({st.metric}, sigma={st.sigma:g}) to {config.compress} points ...")
@@ -70,12 +69,14 @@ def target_stand_ins(problem: Problem, stages: list[Stage], config) -> dict[Targ
     step ahead (:mod:`ncflow.match.ahead`).
     """
     out: dict[TargetKey, tuple[Any, float, dict]] = {}
+    shapes = {}
     for st in stages:
-        metric = get_metric(st.metric)
-        shape = _represented(problem, metric, padded=True)
-        rows = config.compress if compressed(_rows(problem, metric), config) else shape.centers.shape[0]
-        y = jax.tree_util.tree_map(lambda a, r=rows: jnp.zeros((r, *a.shape[1:]), a.dtype), shape)
-        out[(st.metric, st.sigma, st.phase_config.sigma_normal)] = (y, 1.0, {})
+        if st.metric not in shapes:
+            metric = get_metric(st.metric)
+            shape = _represented(problem, metric, padded=True)
+            rows = config.compress if compressed(_rows(problem, metric), config) else shape.centers.shape[0]
+            shapes[st.metric] = jax.tree_util.tree_map(lambda a, r=rows: jnp.zeros((r, *a.shape[1:]), a.dtype), shape)
+        out[(st.metric, st.sigma, st.phase_config.sigma_normal)] = (shapes[st.metric], 1.0, {})
     return out
 
 
@@ -83,10 +84,14 @@ def _represented(problem: Problem, metric, padded: bool):
     """The shapes of the target's measure in ``metric`` (nothing computed), of the mesh padded to its
     size buckets (:func:`ncflow.buckets.pad_mesh`) or as it is.
     """
-    vertices, topology = problem.target_vertices, problem.target_topology
-    if padded:
-        vertices, topology = pad_mesh(np.zeros((vertices.shape[0], 3), DTYPE), topology)
-    return jax.eval_shape(lambda v: metric.represent(v, topology), jax.ShapeDtypeStruct((vertices.shape[0], 3), DTYPE))
+
+    def measure(v):
+        topology = problem.target_topology
+        if padded:
+            v, topology = pad_mesh(v, topology)
+        return metric.represent(v, topology)
+
+    return jax.eval_shape(measure, jax.ShapeDtypeStruct(problem.target_vertices.shape, DTYPE))
 
 
 def _rows(problem: Problem, metric) -> int:
