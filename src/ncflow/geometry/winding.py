@@ -34,13 +34,14 @@ def winding_numbers(
     tri = np.asarray(triangles, dtype=np.float64)
     out = np.zeros(points.shape[0])
     per = max(1, chunk // max(1, tri.shape[0]))
+    corners = tri.transpose(1, 2, 0)  # (3 corners, 3 coordinates, F): one (p, F) array per component
     for s in range(0, points.shape[0], per):
-        abc = tri[None] - points[s : s + per, None, None, :]
-        a, b, c = abc[:, :, 0], abc[:, :, 1], abc[:, :, 2]
-        la, lb, lc = (np.linalg.norm(x, axis=-1) for x in (a, b, c))
-        num = np.einsum("pfi,pfi->pf", a, np.cross(b, c))
-        den = la * lb * lc + np.einsum("pfi,pfi->pf", a, b) * lc + np.einsum("pfi,pfi->pf", b, c) * la
-        den += np.einsum("pfi,pfi->pf", c, a) * lb
+        q = points[s : s + per].T[:, :, None]  # (3, p, 1)
+        (ax, ay, az), (bx, by, bz), (cx, cy, cz) = (corners[k][:, None, :] - q for k in range(3))
+        la, lb, lc = (np.sqrt(x * x + y * y + z * z) for x, y, z in ((ax, ay, az), (bx, by, bz), (cx, cy, cz)))
+        num = ax * (by * cz - bz * cy) + ay * (bz * cx - bx * cz) + az * (bx * cy - by * cx)
+        den = la * lb * lc + (ax * bx + ay * by + az * bz) * lc + (bx * cx + by * cy + bz * cz) * la
+        den += (cx * ax + cy * ay + cz * az) * lb
         out[s : s + per] = np.arctan2(num, den).sum(axis=1) / (2.0 * np.pi)
     return out
 

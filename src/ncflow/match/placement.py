@@ -108,8 +108,7 @@ def surface_diracs(
         rng = np.random.default_rng([seed, 1913])
         idx = rng.choice(f.shape[0], size=n, replace=True, p=area / area.sum())
         center, normal, area = center[idx], normal[idx], np.full(n, area.sum() / n)
-    dt = jnp.float32
-    return Varifold(jnp.asarray(center, dt), jnp.asarray(normal, dt), jnp.asarray(area, dt))
+    return Varifold(*(jnp.asarray(np.asarray(a, np.float32)) for a in (center, normal, area)))
 
 
 def _moved(y: Varifold, rotation, translation, pivot) -> Varifold:
@@ -180,10 +179,8 @@ def _refined_candidates(
     """
     x = surface_diracs(source_vertices, source_faces, n_samples, seed)
     y = surface_diracs(target_vertices, target_faces, n_samples, seed + 1)
-    centroid = jax.jit(_centroid)
-    pivot = centroid(y)
-    shift = centroid(x) - pivot
-    rotations = jnp.asarray(candidate_rotations(x, y), jnp.float32)
+    pivot, shift = jax.jit(lambda x, y: (_centroid(y), _centroid(x) - _centroid(y)))(x, y)
+    rotations = np.asarray(candidate_rotations(x, y), np.float32)
 
     def score(rotation, translation, sigma):
         ym = _moved(y, rotation, translation, pivot)
@@ -194,7 +191,7 @@ def _refined_candidates(
     scan = jax.jit(lambda rs: jax.lax.map(lambda r: score(r, shift, s0), rs))
     scores = np.asarray(scan(rotations))
     order = [0] + [int(i) for i in np.argsort(-scores) if i != 0][: max(keep - 1, 0)]
-    start = rotations[np.asarray(order)]
+    start = jnp.asarray(rotations[np.asarray(order)])
 
     opt = optax.adam(0.02)
 
@@ -215,8 +212,7 @@ def _refined_candidates(
         return p[0], p[1], -loss(p)
 
     refine_all = jax.jit(lambda r0, s, w, d: jax.lax.map(lambda a: refine(a[0], s, a[1], a[2]), (r0, w, d)))
-    w = jnp.zeros((len(order), 3), jnp.float32)
-    d = jnp.zeros((len(order), 3), jnp.float32)
+    w = d = np.zeros((len(order), 3), np.float32)
     final = None
     for sigma in sigmas:
         w, d, final = refine_all(start, float(sigma), w, d)

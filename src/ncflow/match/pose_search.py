@@ -104,15 +104,33 @@ def best_distinct(
     return picked
 
 
+def _host(pose: Pose) -> Pose:
+    """The pose as NumPy arrays. The search's bookkeeping between its compiled programs (picking,
+    stacking, padding poses) runs on the host: done with jax.numpy, each operation and shape is one
+    more small program to compile, and on a cold run such compiles wait seconds each behind the
+    training step compiling in its thread (:mod:`ncflow.match.ahead`).
+    """
+    return Pose(np.asarray(pose.rotations), np.asarray(pose.translation))
+
+
+def _picked(pose: Pose, rows) -> Pose:
+    """Rows ``rows`` of a stack of poses (on the host, as :func:`_host`)."""
+    pose = _host(pose)
+    return Pose(pose.rotations[rows], pose.translation[rows])
+
+
+def _stacked(*poses: Pose) -> Pose:
+    """Stacks of poses one after the other (on the host, as :func:`_host`)."""
+    poses = [_host(p) for p in poses]
+    return Pose(np.concatenate([p.rotations for p in poses]), np.concatenate([p.translation for p in poses]))
+
+
 def _completed(first: Pose, pooled: Pose) -> Pose:
     """``first`` followed by the rows of ``pooled`` past its length: the pooled shape, so that one
     compiled scorer serves the pooled beams and the refined candidates.
     """
     n = first.rotations.shape[0]
-    return Pose(
-        jnp.concatenate([first.rotations, pooled.rotations[n:]]),
-        jnp.concatenate([first.translation, pooled.translation[n:]]),
-    )
+    return _stacked(first, _picked(pooled, slice(n, None)))
 
 
 def moving_diracs(skeleton: Skeleton, weights: Float[np.ndarray, "N B"], joint: int, tol: float) -> np.ndarray:
@@ -164,15 +182,13 @@ def _exchange_step(skeleton, beams: Pose, n_real: int, limbs, sigma, score, y, m
         distinct[i] = move >= min_move * length
     if not distinct.any():
         return beams, n_real, 0
-    cand = Pose(
-        jnp.concatenate([beams.rotations, jnp.asarray(swapped, beams.rotations.dtype)]),
-        jnp.concatenate([beams.translation, beams.translation]),
-    )
+    beams = _host(beams)
+    cand = _stacked(beams, Pose(swapped.astype(beams.rotations.dtype), beams.translation))
     s = np.array(score(cand, np.concatenate([np.arange(beam) < n_real, distinct]), sigma, y), np.float64)
     n_new = n_real + int(distinct.sum())
     keep = np.argsort(s, kind="stable")[: min(beam, n_new)]
     keep = np.concatenate([keep, np.repeat(keep[:1], beam - keep.size)])
-    return Pose(cand.rotations[keep], cand.translation[keep]), min(beam, n_new), int(distinct.sum())
+    return _picked(cand, keep), min(beam, n_new), int(distinct.sum())
 
 
 def search_pose(
@@ -277,6 +293,7 @@ def search_poses(
         return (varifold_inner(xs, xs, sigma, 0.5) - 2.0 * varifold_inner(xs, y, sigma, 0.5) + yy) / yy
 
     rest = rest_pose(skeleton, dt)
+    rest_stack = Pose(np.asarray(rest.rotations)[None], np.asarray(rest.translation)[None])
 
     def scores(poses: Pose, active, sigma, src, y):
         """Each pose's distance, +inf without computing it where ``active`` is False (padding rows:
@@ -383,7 +400,7 @@ def search_poses(
     n_hyp = max([h.shape[0] for _, h, _, _ in searched] or [1])
 
     def padded(q):
-        return jnp.asarray(np.vstack([q, np.tile([1.0, 0.0, 0.0, 0.0], (n_hyp - q.shape[0], 1))]), dt)
+        return jnp.asarray(np.vstack([q, np.tile([1.0, 0.0, 0.0, 0.0], (n_hyp - q.shape[0], 1))]).astype(dt))
 
     bone_weights = np.asarray(src_coarse[1])  # read back once, not once per joint
     moving = {j: moving_diracs(skeleton, bone_weights, j, moving_tol) for j, *_ in searched}
@@ -397,7 +414,7 @@ def search_poses(
         idx = moving[j]
         if not 0 < idx.size <= size:
             return None
-        return jnp.asarray(np.resize(idx, size), jnp.int32), jnp.asarray(np.arange(size) < idx.size, dt)
+        return jnp.asarray(np.resize(idx, size).astype(np.int32)), jnp.asarray((np.arange(size) < idx.size).astype(dt))
 
     searched = [(j, h.shape[0], padded(h), padded(hc), c, part(j)) for j, h, hc, c in searched]
     # limb exchanges go before the first joint of the limbs' level (their parent posed, they not yet)
@@ -410,7 +427,7 @@ def search_poses(
 
     def beam_search(sigma, exchange, y_coarse):
         """The best ``beam`` poses down the tree (rows past the distinct count repeat the best)."""
-        beams = Pose(jnp.repeat(rest.rotations[None], beam, 0), jnp.repeat(rest.translation[None], beam, 0))
+        beams = _picked(rest_stack, np.zeros(beam, int))
         n_real, n_scored = 1, 0
         for step in plan:
             if len(step) == 2:  # a limb exchange: each beam pose with and without it
@@ -426,15 +443,12 @@ def search_poses(
             keep = np.argsort(s, kind="stable")[: min(beam, n_real * n_h)]
             keep = np.concatenate([keep, np.repeat(keep[:1], beam - keep.size)])  # pad with the best
             n_real = min(beam, n_real * n_h)
-            beams = Pose(cand.rotations[keep], cand.translation[keep])
+            beams = _picked(cand, keep)
         return beams, n_real, n_scored
 
     def pool(found):
         """All searches' beams and the rest pose in one stack, and which rows are real."""
-        pooled = Pose(
-            jnp.concatenate([b.rotations for b, _, _ in found] + [rest.rotations[None]]),
-            jnp.concatenate([b.translation for b, _, _ in found] + [rest.translation[None]]),
-        )
+        pooled = _stacked(*[b for b, _, _ in found], rest_stack)
         return pooled, np.concatenate([np.arange(beam) < n for _, n, _ in found] + [[True]])
 
     pose_joints = jax.jit(jax.vmap(lambda p: joint_positions(forward_kinematics(skeleton, p))))
@@ -458,7 +472,7 @@ def search_poses(
         found = [beam_search(float(sigma), bool(exchange), y_coarse) for sigma, exchange in searches]
         n_scored = 1 + sum(f[2] for f in found)
         pooled, valid = pool(found)
-        pooled = canonical(pooled)
+        pooled = _host(canonical(pooled))
         # the searches often agree: refine at most ``refined`` distinct poses, best scored first
         first = np.array(score_fine(pooled, valid, float(sigmas_refine[0]), y_fine), np.float64)
         picked = best_distinct(first[:-1], np.asarray(pose_joints(pooled))[:-1], n_refined, distinct)
@@ -467,7 +481,7 @@ def search_poses(
         real[-1] = True  # the rest pose, refined too; the copies before it fill the fixed shape
         only = np.zeros(valid.size, bool)
         scored = np.concatenate([real, only[rows.size :]])
-        candidates = Pose(pooled.rotations[rows], pooled.translation[rows])
+        candidates = _picked(pooled, rows)
         active = real
         for level, sigma in enumerate(sigmas_refine):
             if level:  # finer scales: the best few that are still distinct
@@ -478,7 +492,7 @@ def search_poses(
             candidates = refine_all(candidates, active, float(sigma), y_fine)
         padded = _completed(candidates, pooled)
         final = np.array(score_fine(padded, scored, float(sigmas_refine[-1]), y_fine), np.float64)
-        rests = Pose(jnp.repeat(rest.rotations[None], valid.size, 0), jnp.repeat(rest.translation[None], valid.size, 0))
+        rests = _picked(rest_stack, np.zeros(valid.size, int))
         only[0] = True
         rest_score = float(np.asarray(score_fine(rests, only, float(sigmas_refine[-1]), y_fine))[0])
         candidates = padded
@@ -486,7 +500,7 @@ def search_poses(
         if final[best] >= rest_score:
             results.append(PoseSearchResult(rest, rest_score, rest_score, n_scored))
             continue
-        pose = canonical(Pose(candidates.rotations[best : best + 1], candidates.translation[best : best + 1]))
-        pose = Pose(pose.rotations[0], pose.translation[0])
+        pose = _host(canonical(_picked(candidates, slice(best, best + 1))))
+        pose = Pose(jnp.asarray(pose.rotations[0]), jnp.asarray(pose.translation[0]))
         results.append(PoseSearchResult(pose, float(final[best]), rest_score, n_scored))
     return results

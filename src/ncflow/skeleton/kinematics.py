@@ -37,6 +37,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from ncflow.geometry.skeleton import Skeleton
@@ -71,9 +72,10 @@ class Pose(NamedTuple):
 
 def rest_pose(skeleton: Skeleton, dtype=None) -> Pose:
     """The identity pose: all rotations (1, 0, 0, 0), no translation."""
-    dtype = dtype or jnp.result_type(float)
-    rot = jnp.zeros((skeleton.n_joints, 4), dtype).at[:, 0].set(1.0)
-    return Pose(rot, jnp.zeros(3, dtype))
+    dtype = np.dtype(dtype or jnp.result_type(float))
+    rot = np.zeros((skeleton.n_joints, 4), dtype)
+    rot[:, 0] = 1.0
+    return Pose(jnp.asarray(rot), jnp.asarray(np.zeros(3, dtype)))
 
 
 def _offsets(skeleton: Skeleton, dtype) -> Array:
