@@ -27,12 +27,3 @@ def test_a_sphere_winds_once_around_its_inside_only():
     assert np.allclose(w[:200], 1.0, atol=1e-9) and np.allclose(w[200:], 0.0, atol=1e-9)
     assert np.allclose(winding_numbers(points, v[f][:, ::-1]), -w, atol=1e-12)
     assert signed_volume(v, f) > 0
-
-
-def test_chunks_do_not_change_the_result():
-    sphere = trimesh.creation.icosphere(subdivisions=2)
-    tri = np.asarray(sphere.vertices)[np.asarray(sphere.faces)]
-    points = np.random.default_rng(1).uniform(-1.5, 1.5, size=(57, 3))
-    whole = winding_numbers(points, tri)
-    assert np.array_equal(winding_numbers(points, tri, chunk=tri.shape[0] * 5), whole)
-    assert np.array_equal(winding_numbers(points, tri, chunk=1), whole)

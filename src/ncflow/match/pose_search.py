@@ -105,30 +105,23 @@ def best_distinct(
 
 
 def _host(pose: Pose) -> Pose:
-    """The pose as NumPy arrays. The search's bookkeeping between its compiled programs (picking,
-    stacking, padding poses) runs on the host: done with jax.numpy, each operation and shape is one
-    more small program to compile, and on a cold run such compiles wait seconds each behind the
-    training step compiling in its thread (:mod:`ncflow.match.ahead`).
+    """The pose in NumPy: the bookkeeping between the compiled programs (picking, stacking poses) runs
+    on the host. With jax.numpy each operation and shape is one more program to compile, and on a cold
+    run each waits seconds behind the training step compiling in its thread (:mod:`ncflow.match.ahead`).
     """
-    return Pose(np.asarray(pose.rotations), np.asarray(pose.translation))
+    return jax.tree.map(np.asarray, pose)
 
 
 def _picked(pose: Pose, rows) -> Pose:
-    """Rows ``rows`` of a stack of poses (on the host, as :func:`_host`)."""
-    pose = _host(pose)
-    return Pose(pose.rotations[rows], pose.translation[rows])
+    return jax.tree.map(lambda a: np.asarray(a)[rows], pose)
 
 
 def _stacked(*poses: Pose) -> Pose:
-    """Stacks of poses one after the other (on the host, as :func:`_host`)."""
-    poses = [_host(p) for p in poses]
-    return Pose(np.concatenate([p.rotations for p in poses]), np.concatenate([p.translation for p in poses]))
+    return jax.tree.map(lambda *a: np.concatenate([np.asarray(x) for x in a]), *poses)
 
 
 def _completed(first: Pose, pooled: Pose) -> Pose:
-    """``first`` followed by the rows of ``pooled`` past its length: the pooled shape, so that one
-    compiled scorer serves the pooled beams and the refined candidates.
-    """
+    """``first``, then the rows of ``pooled`` past its length: one scorer serves both stacks."""
     n = first.rotations.shape[0]
     return _stacked(first, _picked(pooled, slice(n, None)))
 
