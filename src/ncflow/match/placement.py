@@ -108,7 +108,7 @@ def surface_diracs(
         rng = np.random.default_rng([seed, 1913])
         idx = rng.choice(f.shape[0], size=n, replace=True, p=area / area.sum())
         center, normal, area = center[idx], normal[idx], np.full(n, area.sum() / n)
-    return Varifold(*(jnp.asarray(np.asarray(a, np.float32)) for a in (center, normal, area)))
+    return Varifold(*(jax.device_put(np.asarray(a, np.float32)) for a in (center, normal, area)))
 
 
 def _moved(y: Varifold, rotation, translation, pivot) -> Varifold:
@@ -191,7 +191,7 @@ def _refined_candidates(
     scan = jax.jit(lambda rs: jax.lax.map(lambda r: score(r, shift, s0), rs))
     scores = np.asarray(scan(rotations))
     order = [0] + [int(i) for i in np.argsort(-scores) if i != 0][: max(keep - 1, 0)]
-    start = jnp.asarray(rotations[np.asarray(order)])
+    start = jax.device_put(rotations[np.asarray(order)])
 
     opt = optax.adam(0.02)
 

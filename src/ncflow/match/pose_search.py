@@ -393,7 +393,7 @@ def search_poses(
     n_hyp = max([h.shape[0] for _, h, _, _ in searched] or [1])
 
     def padded(q):
-        return jnp.asarray(np.vstack([q, np.tile([1.0, 0.0, 0.0, 0.0], (n_hyp - q.shape[0], 1))]).astype(dt))
+        return jax.device_put(np.vstack([q, np.tile([1.0, 0.0, 0.0, 0.0], (n_hyp - q.shape[0], 1))]).astype(dt))
 
     bone_weights = np.asarray(src_coarse[1])  # read back once, not once per joint
     moving = {j: moving_diracs(skeleton, bone_weights, j, moving_tol) for j, *_ in searched}
@@ -407,7 +407,7 @@ def search_poses(
         idx = moving[j]
         if not 0 < idx.size <= size:
             return None
-        return jnp.asarray(np.resize(idx, size).astype(np.int32)), jnp.asarray((np.arange(size) < idx.size).astype(dt))
+        return jax.device_put((np.resize(idx, size).astype(np.int32), (np.arange(size) < idx.size).astype(dt)))
 
     searched = [(j, h.shape[0], padded(h), padded(hc), c, part(j)) for j, h, hc, c in searched]
     # limb exchanges go before the first joint of the limbs' level (their parent posed, they not yet)
@@ -493,7 +493,6 @@ def search_poses(
         if final[best] >= rest_score:
             results.append(PoseSearchResult(rest, rest_score, rest_score, n_scored))
             continue
-        pose = _host(canonical(_picked(candidates, slice(best, best + 1))))
-        pose = Pose(jnp.asarray(pose.rotations[0]), jnp.asarray(pose.translation[0]))
+        pose = jax.device_put(_picked(canonical(_picked(candidates, slice(best, best + 1))), 0))
         results.append(PoseSearchResult(pose, float(final[best]), rest_score, n_scored))
     return results

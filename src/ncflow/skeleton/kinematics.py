@@ -75,7 +75,7 @@ def rest_pose(skeleton: Skeleton, dtype=None) -> Pose:
     dtype = np.dtype(dtype or jnp.result_type(float))
     rot = np.zeros((skeleton.n_joints, 4), dtype)
     rot[:, 0] = 1.0
-    return Pose(jnp.asarray(rot), jnp.asarray(np.zeros(3, dtype)))
+    return jax.device_put(Pose(rot, np.zeros(3, dtype)))
 
 
 def _offsets(skeleton: Skeleton, dtype) -> Array:
