@@ -34,20 +34,23 @@ import shutil  # noqa: E402
 import tempfile  # noqa: E402
 
 
-def _session_dir(prefix: str) -> str:
-    """A fresh temporary folder, removed when the test process exits."""
-    path = tempfile.mkdtemp(prefix=prefix)
-    atexit.register(shutil.rmtree, path, ignore_errors=True)
-    return path
+def _run_dir(variable: str, prefix: str) -> str:
+    """``$variable``, or a fresh folder put there and removed when this process exits. pytest loads this
+    file in its controlling process before it starts the pytest-xdist workers, which inherit the
+    variable: the whole run shares one folder.
+    """
+    if variable not in os.environ:
+        path = tempfile.mkdtemp(prefix=prefix)
+        atexit.register(shutil.rmtree, path, ignore_errors=True)
+        os.environ[variable] = path
+    return os.environ[variable]
 
 
-# keep the tetrahedralisation cache of test runs out of the user's home
-if "NCFLOW_CACHE_DIR" not in os.environ:
-    os.environ["NCFLOW_CACHE_DIR"] = _session_dir("ncflow-test-cache-")
-
-# identical training steps compiled by several matcher runs in one test process are reused (each
-# pytest-xdist worker has its own folder; a test file runs whole in one worker)
-jax.config.update("jax_compilation_cache_dir", _session_dir("ncflow-test-jit-"))
+# keep the caches of test runs out of the user's home: the tetrahedra, and the compiled programs in the
+# folder where ncflow looks by default (the processes that tests start, CLI runs and Dask workers, find
+# it too), so identical programs are compiled once in a run, across test files and workers
+_cache = _run_dir("NCFLOW_CACHE_DIR", "ncflow-test-cache-")
+jax.config.update("jax_compilation_cache_dir", os.path.join(_cache, "jax"))
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 

@@ -45,11 +45,11 @@ TINY = [
 
 
 @pytest.fixture(scope="module")
-def tiny(tmp_path_factory):
-    """TINY with a persistent compilation cache of its own: the runs happen in Dask worker processes, and
-    both pairs share their source, so the second pair's training step (and every later run's) is read
-    back from that cache instead of compiled again (~20 s each)."""
-    return [*TINY, "--set", f"jit_cache={tmp_path_factory.mktemp('jit')}"]
+def tiny():
+    """TINY. The runs happen in Dask worker processes, which read and write the test run's compilation
+    cache (``$NCFLOW_CACHE_DIR/jax``, see conftest.py): both pairs share their source, so the second
+    pair's training step (and every later run's) is read back instead of compiled again (~20 s each)."""
+    return list(TINY)
 
 
 @pytest.fixture(scope="module")
