@@ -45,9 +45,12 @@ def fit_pose(
     def residual(flat):
         return (root * (rigid_reference(skeleton, unravel(flat), rest_points, times, interp) - flowed)).reshape(-1)
 
-    def gauss_newton(_, flat):
+    def residual_twice(flat):
         r = residual(flat)
-        jac = jax.jacfwd(residual)(flat)
+        return r, r
+
+    def gauss_newton(_, flat):
+        jac, r = jax.jacfwd(residual_twice, has_aux=True)(flat)  # the forward kinematics traced once
         a = jac.T @ jac
         mu = 1e-3 * jnp.trace(a) / a.shape[0] + 1e-12
         delta = jnp.linalg.solve(a + mu * jnp.eye(a.shape[0], dtype=a.dtype), jac.T @ r)
