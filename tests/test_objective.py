@@ -84,21 +84,27 @@ def _first_stage(problem):
 
 
 def stage_objective(params, arrays, settings, st, target, yy, lam, key):
-    """The objective of stage ``st`` (Varifold normal scale 0.5, both constraint weights 1) at the rest pose."""
-    return objective(
-        params,
-        rest_pose(arrays.skeleton, DTYPE),
-        (target,),
-        0,
-        jnp.asarray(st.sigma, DTYPE),
-        jnp.asarray(0.5, DTYPE),
-        jnp.asarray(yy, DTYPE),
-        jnp.asarray([1.0, 1.0], DTYPE),
-        lam,
-        key,
-        arrays=arrays,
-        settings=settings,
-    )
+    """The objective of stage ``st`` (Varifold normal scale 0.5, both constraint weights 1) at the rest
+    pose, compiled as the training step compiles it (run op by op, each operation is a program).
+    """
+
+    def run(params, target, lam, key):
+        return objective(
+            params,
+            rest_pose(arrays.skeleton, DTYPE),
+            (target,),
+            0,
+            jnp.asarray(st.sigma, DTYPE),
+            jnp.asarray(0.5, DTYPE),
+            jnp.asarray(yy, DTYPE),
+            jnp.asarray([1.0, 1.0], DTYPE),
+            lam,
+            key,
+            arrays=arrays,
+            settings=settings,
+        )
+
+    return eqx.filter_jit(run)(params, target, lam, key)
 
 
 def test_objective_at_identity_flow_is_the_data_term_plus_nothing(problem):
@@ -134,21 +140,25 @@ def test_one_step_for_every_metric_picks_the_stage_data_term(problem):
     tg = {m: targets[(st.metric, st.sigma, st.phase_config.sigma_normal)] for m, st in firsts.items()}
 
     def data(settings, which, stage_targets, st):
-        _, aux = objective(
-            params,
-            rest_pose(arrays.skeleton, DTYPE),
-            stage_targets,
-            jnp.asarray(which, jnp.int32),
-            jnp.asarray(st.sigma, DTYPE),
-            jnp.asarray(st.phase_config.sigma_normal, DTYPE),
-            jnp.asarray(tg[st.metric][1], DTYPE),
-            jnp.asarray([1.0, 1.0], DTYPE),
-            jnp.zeros((2, arrays.skeleton.n_bones), DTYPE),
-            jax.random.key(1),
-            arrays=arrays,
-            settings=settings,
-        )
-        return float(aux["data"])
+        @eqx.filter_jit
+        def run(stage_targets, which, sigma, sigma_n, yy):
+            return objective(
+                params,
+                rest_pose(arrays.skeleton, DTYPE),
+                stage_targets,
+                which,
+                sigma,
+                sigma_n,
+                yy,
+                jnp.asarray([1.0, 1.0], DTYPE),
+                jnp.zeros((2, arrays.skeleton.n_bones), DTYPE),
+                jax.random.key(1),
+                arrays=arrays,
+                settings=settings,
+            )[1]["data"]
+
+        sigmas = (st.sigma, st.phase_config.sigma_normal, tg[st.metric][1])
+        return float(run(stage_targets, jnp.asarray(which, jnp.int32), *(jnp.asarray(v, DTYPE) for v in sigmas)))
 
     values = []
     for i, (m, st) in enumerate(firsts.items()):
@@ -203,7 +213,7 @@ def test_optimizer_scales_the_pose_through_multi_transform(problem):
         opt = build_optimizer(c)
         state = opt.init(params)
         state = state._replace(hyperparams={**state.hyperparams, "learning_rate": jnp.asarray(1e-2, DTYPE)})
-        moved[scale], _ = opt.update(grads, state, params)
+        moved[scale], _ = jax.jit(opt.update)(grads, state, params)
     flat_labels = jax.tree_util.tree_leaves(parameter_labels(params))
     assert flat_labels.count("pose") == 2 and "net" in flat_labels  # rotations + translation
     assert flat_labels.count("frozen") == 1  # the bone weights' width τ: an array, never trained

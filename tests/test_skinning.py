@@ -57,13 +57,15 @@ def test_weights_partition_unity_and_pick_the_nearest_bone():
 def test_bone_velocities_are_the_time_derivative_of_the_bone_motions():
     skel, pose = _skeleton(), _pose(_skeleton())
     t = 0.37
-    r, c, dr, dc = bone_velocities(skel, pose, t)
+    r, c, dr, dc = jax.jit(lambda pose, t: bone_velocities(skel, pose, t))(
+        pose, t
+    )  # one program, not one per operation
     p = jnp.asarray(np.random.default_rng(1).normal(size=(skel.n_bones, 3, 3)))  # 3 rest points per bone
 
     def at(s):
         return move_bone_points(bone_motions(skel, pose, s), p)
 
-    x, dx = jax.jvp(at, (jnp.asarray(t),), (jnp.asarray(1.0),))  # autodiff reference
+    x, dx = jax.jit(lambda t: jax.jvp(at, (t,), (jnp.ones_like(t),)))(jnp.asarray(t))  # autodiff reference
     np.testing.assert_allclose(np.asarray(jnp.einsum("bij,bnj->bni", r, p) + c[:, None]), np.asarray(x), atol=1e-12)
     v = jnp.einsum("bij,bkj,bnk->bni", dr, r, x - c[:, None]) + dc[:, None]
     np.testing.assert_allclose(np.asarray(v), np.asarray(dx), atol=1e-5)
@@ -93,8 +95,11 @@ def test_points_near_a_bone_axis_move_rigidly_with_it(interp):
     pts = a[:, None] + z * (b - a)[:, None] + 0.05 * rng.uniform(-1, 1, size=(skel.n_bones, 12, 3)) / np.sqrt(3)
     errors = []
     for n_times in (10, 20):
-        xs = flow_points(field, jnp.asarray(pts.reshape(-1, 3)), n_times).reshape(n_times, *pts.shape)
-        ref = rigid_reference(skel, pose, jnp.asarray(pts), time_grid(n_times, jnp.float64), interp)
+        xs = jax.jit(lambda p, n=n_times: flow_points(field, p, n))(jnp.asarray(pts.reshape(-1, 3)))
+        xs = xs.reshape(n_times, *pts.shape)
+        ref = jax.jit(lambda p, t: rigid_reference(skel, pose, p, t, interp))(
+            jnp.asarray(pts), time_grid(n_times, jnp.float64)
+        )
         errors.append(float(jnp.max(jnp.linalg.norm(xs - ref, axis=-1))))
     # the only error left is the integrator's (second order): it falls ~4x per halving of h
     assert errors[0] < 0.02, errors
@@ -109,11 +114,12 @@ def _miss_at_the_end(skel, pose, bone, p):
     """How far each weight mode leaves point p (on ``bone``) from that bone's rigid motion at t = 1."""
     pts = np.zeros((skel.n_bones, 1, 3))
     pts[bone] = p
-    ref = rigid_reference(skel, pose, jnp.asarray(pts), jnp.asarray([1.0]))[0, bone]
+    ref = jax.jit(lambda p: rigid_reference(skel, pose, p, jnp.asarray([1.0])))(jnp.asarray(pts))[0, bone]
     miss = {}
     for mode in ("start", "current"):
         field = SkinnedField(_residual(alpha=0.0), skel, pose, width=0.05, dtype=jnp.float64, weight_mode=mode)
-        miss[mode] = float(np.linalg.norm(np.asarray(flow_points(field, jnp.asarray(p), 40)[-1] - ref)))
+        end = jax.jit(lambda x, f=field: flow_points(f, x, 40)[-1])(jnp.asarray(p))
+        miss[mode] = float(np.linalg.norm(np.asarray(end - ref)))
     return ref, miss
 
 
@@ -172,7 +178,8 @@ def test_skinned_flow_matches_an_independent_ode_solution(mode):
         return np.einsum("nb,nbi->ni", w, xi).reshape(-1)
 
     ref = solve_ivp(rhs, (0.0, 1.0), x0.reshape(-1), rtol=1e-9, atol=1e-11).y[:, -1].reshape(-1, 3)
-    errors = [float(np.abs(np.asarray(flow_points(field, jnp.asarray(x0), n)[-1]) - ref).max()) for n in (20, 40)]
+    ends = [jax.jit(lambda x, n=n: flow_points(field, x, n)[-1])(jnp.asarray(x0)) for n in (20, 40)]
+    errors = [float(np.abs(np.asarray(end) - ref).max()) for end in ends]
     assert errors[0] < 5e-3, errors
     assert errors[1] < errors[0] / 3, errors  # second order: the error is the integrator's
 
@@ -186,7 +193,7 @@ def test_pose_gradient_is_finite_at_rest_and_moves_the_points():
         f = SkinnedField(_residual(), skel, pose, width=0.05, dtype=jnp.float64)
         return jnp.sum((flow_points(f, pts, 10)[-1] - goal) ** 2)
 
-    grad = jax.grad(loss)(rest_pose(skel, jnp.float64))
+    grad = jax.jit(jax.grad(loss))(rest_pose(skel, jnp.float64))
     assert all(bool(jnp.all(jnp.isfinite(g))) for g in jax.tree_util.tree_leaves(grad))
     # a pure x-shift is explained by the root translation: its gradient is -2 Σ 0.1 = -6 along x
     np.testing.assert_allclose(np.asarray(grad.translation), [-6.0, 0.0, 0.0], atol=1e-9)
@@ -234,7 +241,9 @@ def test_swing_pose_removes_the_twist_of_single_child_joints_only():
     np.testing.assert_allclose(np.asarray(swing.translation), [0.1, 0.0, 0.0])
     # the trained twist parameter gets no gradient through the field
     x = jnp.asarray(np.random.default_rng(5).normal(scale=0.3, size=(20, 3)) + [0, 0, 0.5])
-    grad = jax.grad(lambda p: jnp.sum(SkinnedField(_residual(), skel, p, dtype=jnp.float64)(x, 0.5) ** 2))(pose)
+    grad = jax.jit(jax.grad(lambda p: jnp.sum(SkinnedField(_residual(), skel, p, dtype=jnp.float64)(x, 0.5) ** 2)))(
+        pose
+    )
     assert abs(float(grad.rotations[0, 3])) < 1e-12 and abs(float(grad.rotations[0, 1])) > 1e-6
 
 
