@@ -36,20 +36,24 @@ def _angle(q):
     return 2 * np.arccos(min(1.0, abs(q[0])))
 
 
-def _fit(flowed, pts, iterations=40):
-    return fit_pose(
-        SKEL, rest_pose(SKEL, jnp.float64), pts, flowed, TIMES, "sclerp", iterations=iterations, max_step=0.1
-    )
+@jax.jit
+def _reference(pose, pts):
+    """The bone samples' rigid reference (one program: op by op, each operation would be one)."""
+    return rigid_reference(SKEL, pose, pts, TIMES, "sclerp")
+
+
+@jax.jit
+def _fit(flowed, pts, weights=None):
+    """40 Gauss-Newton iterations from the rest pose (steps of at most 0.1)."""
+    return fit_pose(SKEL, rest_pose(SKEL, jnp.float64), pts, flowed, TIMES, "sclerp", 40, 0.1, weights)
 
 
 def test_fit_recovers_an_articulated_pose_with_twist():
     pts = _samples()
     true = _twisted_pose(0.3)
-    flowed = rigid_reference(SKEL, true, pts, TIMES, "sclerp")
+    flowed = _reference(true, pts)
     fitted = _fit(flowed, pts)
-    np.testing.assert_allclose(
-        np.asarray(rigid_reference(SKEL, fitted, pts, TIMES, "sclerp")), np.asarray(flowed), atol=1e-8
-    )
+    np.testing.assert_allclose(np.asarray(_reference(fitted, pts)), np.asarray(flowed), atol=1e-8)
     np.testing.assert_allclose(np.asarray(fitted.translation), np.asarray(true.translation), atol=1e-8)
     for j in (0, 1, 2):  # every joint that carries a bone: the same rotation up to sign
         q, want = np.asarray(fitted.rotations[j]), np.asarray(true.rotations[j])
@@ -59,9 +63,9 @@ def test_fit_recovers_an_articulated_pose_with_twist():
 
 def test_each_gauss_newton_step_is_capped_by_the_trust_region():
     pts = _samples()
-    flowed = rigid_reference(SKEL, _twisted_pose(1.2), pts, TIMES, "sclerp")
+    flowed = _reference(_twisted_pose(1.2), pts)
     rest = rest_pose(SKEL, jnp.float64)
-    one = fit_pose(SKEL, rest, pts, flowed, TIMES, "sclerp", iterations=1, max_step=0.01)
+    one = jax.jit(lambda x: fit_pose(SKEL, rest, pts, x, TIMES, "sclerp", iterations=1, max_step=0.01))(flowed)
     moved = np.abs(np.asarray(one.rotations) - np.asarray(rest.rotations)).max()
     assert 0.005 < moved <= 0.0101  # capped (then renormalised), yet it moves
     assert np.abs(np.asarray(one.translation)).max() <= 0.01 + 1e-12
@@ -71,8 +75,8 @@ def test_fit_weights_make_the_fit_objective_the_constraint_term():
     """Σ_t Σ_k w_tk mean_s ‖p̄ − x‖² equals Σ_k (1 + λ^EP_k) g^EP_k + τ (1 + λ^TR_k) g^TR_k."""
     rng = np.random.default_rng(0)
     pts = _samples(12)
-    flowed = rigid_reference(SKEL, _twisted_pose(0.4), pts, TIMES, "sclerp") + 0.02 * rng.standard_normal((6, 4, 12, 3))
-    reference = rigid_reference(SKEL, rest_pose(SKEL, jnp.float64), pts, TIMES, "sclerp")
+    flowed = _reference(_twisted_pose(0.4), pts) + 0.02 * rng.standard_normal((6, 4, 12, 3))
+    reference = _reference(rest_pose(SKEL, jnp.float64), pts)
     lam_ep, lam_tr, tau = rng.uniform(0, 50, 4), rng.uniform(0, 50, 4), 0.7
     w = np.asarray(constraint_fit_weights(6, 4, jnp.float64, lam_ep, lam_tr, tau))
     assert w.shape == (6, 4) and np.all(w[0] == 0)
@@ -86,22 +90,12 @@ def test_a_heavier_endpoint_weight_fits_the_endpoint_better():
     """Interior states off the articulated path: weighting the endpoint pulls the fit to it."""
     pts = _samples()
     true = _twisted_pose(0.3)
-    flowed = np.array(rigid_reference(SKEL, true, pts, TIMES, "sclerp"))
+    flowed = np.array(_reference(true, pts))
     flowed[1:-1] += np.array([0.05, -0.03, 0.04])  # the trajectory bulges; the endpoint is exact
     ends = []
     for lam_ep in (0.0, 100.0):
         w = constraint_fit_weights(6, 4, jnp.float64, lam_ep=jnp.full(4, lam_ep))
-        fitted = fit_pose(
-            SKEL,
-            rest_pose(SKEL, jnp.float64),
-            pts,
-            jnp.asarray(flowed),
-            TIMES,
-            "sclerp",
-            iterations=40,
-            max_step=0.1,
-            weights=w,
-        )
-        ref = rigid_reference(SKEL, fitted, pts, TIMES, "sclerp")
+        fitted = _fit(jnp.asarray(flowed), pts, w)
+        ref = _reference(fitted, pts)
         ends.append(float(np.max(np.asarray(bone_constraints(jnp.asarray(flowed), ref)[0]))))
     assert ends[1] < 0.05 * ends[0] and ends[0] > 1e-5, ends
