@@ -17,7 +17,9 @@ from ncflow.skeleton import Skeleton
 from ncflow.synthetic.pairs import Pair, write_pairs
 from ncflow.synthetic.shapes import bend, capsule
 
-# a tiny configuration: one data term (one compiled step), small nets, few samples, 20 steps
+# a tiny configuration: one data term (one compiled step), small nets, few samples, 20 steps, no rigid
+# placement and no pose search (the capsule pairs need neither; these tests are about the benchmark's
+# bookkeeping, and test_placement.py, test_pose_search.py and test_invariance.py test those stages)
 TINY = [
     "--steps",
     "20",
@@ -41,6 +43,10 @@ TINY = [
     "sampling.surface_edges=128",
     "--set",
     "compress=500",
+    "--set",
+    "placement=none",
+    "--set",
+    "pose_search=false",
 ]
 
 
