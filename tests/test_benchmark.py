@@ -19,7 +19,10 @@ from ncflow.synthetic.shapes import bend, capsule
 
 # a tiny configuration: one data term (one compiled step), small nets, few samples, 20 steps, no rigid
 # placement and no pose search (the capsule pairs need neither; these tests are about the benchmark's
-# bookkeeping, and test_placement.py, test_pose_search.py and test_invariance.py test those stages)
+# bookkeeping, and test_placement.py, test_pose_search.py and test_invariance.py test those stages).
+# The runs happen in Dask worker processes, which share the test run's compilation cache
+# ($NCFLOW_CACHE_DIR/jax, see conftest.py): both pairs share their source, so the second pair's training
+# step (and every later run's) is read back instead of compiled again (~20 s each).
 TINY = [
     "--steps",
     "20",
@@ -51,14 +54,6 @@ TINY = [
 
 
 @pytest.fixture(scope="module")
-def tiny():
-    """TINY. The runs happen in Dask worker processes, which read and write the test run's compilation
-    cache (``$NCFLOW_CACHE_DIR/jax``, see conftest.py): both pairs share their source, so the second
-    pair's training step (and every later run's) is read back instead of compiled again (~20 s each)."""
-    return list(TINY)
-
-
-@pytest.fixture(scope="module")
 def pairs_csv(tmp_path_factory):
     """Two capsule pairs (same source and skeleton, targets bent by 50 and 80 degrees; identity ground truth)."""
     vs, fs = capsule(radius=0.4, length=3.0, n_around=10, n_along=12)
@@ -79,9 +74,9 @@ def _rows(report, method="ncflow"):
     return {r["pair"]: r for r in report["runs"] if r["method"] == method}
 
 
-def test_benchmark_interrupted_then_resumed(pairs_csv, tiny, tmp_path, capsys):
+def test_benchmark_interrupted_then_resumed(pairs_csv, tmp_path, capsys):
     out = tmp_path / "bench"
-    args = ["benchmark", str(pairs_csv), "--out", str(out), *tiny]
+    args = ["benchmark", str(pairs_csv), "--out", str(out), *TINY]
     runs = out / "runs" / "ncflow"
 
     # 1) Ctrl-C as soon as the first run is reported (the second is then waiting or running, --jobs 1):

@@ -84,34 +84,30 @@ def _first_stage(problem):
 
 
 def stage_objective(params, arrays, settings, st, target, yy, lam, key):
-    """The objective of stage ``st`` (Varifold normal scale 0.5, both constraint weights 1) at the rest
-    pose, compiled as the training step compiles it (run op by op, each operation is a program).
-    """
-
-    def run(params, target, lam, key):
-        return objective(
-            params,
-            rest_pose(arrays.skeleton, DTYPE),
-            (target,),
-            0,
-            jnp.asarray(st.sigma, DTYPE),
-            jnp.asarray(0.5, DTYPE),
-            jnp.asarray(yy, DTYPE),
-            jnp.asarray([1.0, 1.0], DTYPE),
-            lam,
-            key,
-            arrays=arrays,
-            settings=settings,
-        )
-
-    return eqx.filter_jit(run)(params, target, lam, key)
+    """The objective of stage ``st`` (Varifold normal scale 0.5, both constraint weights 1) at the rest pose."""
+    return objective(
+        params,
+        rest_pose(arrays.skeleton, DTYPE),
+        (target,),
+        0,
+        jnp.asarray(st.sigma, DTYPE),
+        jnp.asarray(0.5, DTYPE),
+        jnp.asarray(yy, DTYPE),
+        jnp.asarray([1.0, 1.0], DTYPE),
+        lam,
+        key,
+        arrays=arrays,
+        settings=settings,
+    )
 
 
 def test_objective_at_identity_flow_is_the_data_term_plus_nothing(problem):
     """At the first step the flow is ~identity: bones are rigid (g ≈ 0), so no constraint cost."""
     cfg, arrays, st, target, yy, s, params = _first_stage(problem)
     zero_flow = eqx.tree_at(lambda p: p.flow.residual.alpha, params, jnp.zeros_like(params.flow.residual.alpha))
-    total, aux = stage_objective(zero_flow, arrays, s, st, target, yy, jnp.zeros((2, 2), DTYPE), jax.random.key(1))
+    # compiled as the training step compiles it (run op by op, each operation is a program)
+    run = eqx.filter_jit(lambda p, lam, key: stage_objective(p, arrays, s, st, target, yy, lam, key))
+    total, aux = run(zero_flow, jnp.zeros((2, 2), DTYPE), jax.random.key(1))
     # with the residual off and the pose at rest the flow is the identity: the data term is the
     # normalised Varifold distance of the rest source to the target, every bone exactly rigid
     from ncflow.measures.registry import get_metric

@@ -57,9 +57,8 @@ def test_weights_partition_unity_and_pick_the_nearest_bone():
 def test_bone_velocities_are_the_time_derivative_of_the_bone_motions():
     skel, pose = _skeleton(), _pose(_skeleton())
     t = 0.37
-    r, c, dr, dc = jax.jit(lambda pose, t: bone_velocities(skel, pose, t))(
-        pose, t
-    )  # one program, not one per operation
+    # compiled: one program, not one per operation
+    r, c, dr, dc = jax.jit(lambda pose, t: bone_velocities(skel, pose, t))(pose, t)
     p = jnp.asarray(np.random.default_rng(1).normal(size=(skel.n_bones, 3, 3)))  # 3 rest points per bone
 
     def at(s):
@@ -241,9 +240,11 @@ def test_swing_pose_removes_the_twist_of_single_child_joints_only():
     np.testing.assert_allclose(np.asarray(swing.translation), [0.1, 0.0, 0.0])
     # the trained twist parameter gets no gradient through the field
     x = jnp.asarray(np.random.default_rng(5).normal(scale=0.3, size=(20, 3)) + [0, 0, 0.5])
-    grad = jax.jit(jax.grad(lambda p: jnp.sum(SkinnedField(_residual(), skel, p, dtype=jnp.float64)(x, 0.5) ** 2)))(
-        pose
-    )
+
+    def speed(p):
+        return jnp.sum(SkinnedField(_residual(), skel, p, dtype=jnp.float64)(x, 0.5) ** 2)
+
+    grad = jax.jit(jax.grad(speed))(pose)
     assert abs(float(grad.rotations[0, 3])) < 1e-12 and abs(float(grad.rotations[0, 1])) > 1e-6
 
 
