@@ -15,7 +15,7 @@ SCRIPT = textwrap.dedent(
     folder = configure_compilation_cache(sys.argv[1])
     print("FOLDER", folder)
     f = jax.jit(lambda x: jnp.sin(x) @ jnp.cos(x).T + jnp.tanh(x).sum())
-    for n in range(3, 40):  # a few executables, each compiled once
+    for n in range(3, 9):  # six executables, each compiled once
         f(jnp.ones((n, n))).block_until_ready()
     """
 )
@@ -62,7 +62,7 @@ def test_a_cache_folder_serves_from_another_path(tmp_path):
     """
     first, second = _run(tmp_path, str(tmp_path / "one")), _run(tmp_path, str(tmp_path / "two" / "deeper"))
     names = [sorted(os.path.basename(f) for f in _files(folder) if "-cache" in f) for folder in (first, second)]
-    assert len(names[0]) >= 37 and names[0] == names[1]
+    assert len(names[0]) >= 6 and names[0] == names[1]
 
 
 def test_the_tests_run_with_the_jax_settings_users_get():

@@ -36,6 +36,8 @@ def _config(**overrides):
         "weights.tissue=0",
         "sampling.surface_edges=64",
         "compress=none",
+        "placement=none",  # the objective is what is tested: the rest pose, the target as given
+        "pose_search=false",
     ] + [f"{k}={v}" for k, v in overrides.items()]
     return validate_config(apply_overrides(preset("fast"), items))
 
