@@ -1,8 +1,9 @@
 """ncflow's cache folder and JAX's persistent compilation cache in it (issue 17).
 
 Everything ncflow caches lives under one folder: ``$NCFLOW_CACHE_DIR``, default
-``$XDG_CACHE_HOME/ncflow`` (``~/.cache/ncflow``): the tetrahedralisations (``tissue/``) and JAX's
-compiled executables (``jax/``). The compilation cache makes a second run of a pair skip most of
+``$XDG_CACHE_HOME/ncflow`` (``~/.cache/ncflow``): the tetrahedralisations (``tissue/``), each
+pair's placement and pose search (``setup/``, :func:`ncflow.match.prepare.place_and_pose_cached`)
+and JAX's compiled executables (``jax/``). The compilation cache makes a second run of a pair skip most of
 its compilation (the ``jit`` executables of the first run are read back from disk).
 
 ``$NCFLOW_JIT_CACHE`` or the ``jit_cache`` setting move or disable the compilation cache: ``auto``

@@ -183,7 +183,7 @@ class TissueConfig:
     file: str | None = None
 
 
-RESULT_NEUTRAL = ("jit_cache", "compile_ahead")
+RESULT_NEUTRAL = ("jit_cache", "compile_ahead", "setup_cache")
 """Settings of :class:`Config` that never change a result (left out where configurations are compared)."""
 
 
@@ -208,7 +208,10 @@ class Config:
     (:mod:`ncflow.cache`; ``$NCFLOW_JIT_CACHE`` wins); it never changes results.
     ``compile_ahead``: compile the training step and the output programs in a background thread
     while the target is placed and the pose searched (:mod:`ncflow.match.ahead`); it never changes
-    results.
+    results. ``setup_cache``: keep the placement and the pose search of a pair in the cache folder
+    (``setup/``), keyed by the normalised inputs, the settings they depend on and ncflow's code, so
+    a run on the same pair with other training settings reads them back
+    (:func:`ncflow.match.prepare.place_and_pose_cached`); it never changes results.
     """
 
     preset: str = "fast"
@@ -231,6 +234,7 @@ class Config:
     pose_search: bool = True
     jit_cache: str = "auto"
     compile_ahead: bool = True
+    setup_cache: bool = True
 
     @property
     def total_steps(self) -> int:
@@ -706,6 +710,7 @@ def validate_config(config: Config) -> Config:
         (config.placement in ("auto", "none"), "placement must be 'auto' or 'none'"),
         (isinstance(config.pose_search, bool), "pose_search must be true or false"),
         (isinstance(config.compile_ahead, bool), "compile_ahead must be true or false"),
+        (isinstance(config.setup_cache, bool), "setup_cache must be true or false"),
     ]
     for ok, message in checks:
         if not ok:

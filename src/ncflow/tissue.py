@@ -56,7 +56,7 @@ from ncflow.buckets import draw_rows
 from ncflow.cache import cache_root
 from ncflow.errors import InputError
 from ncflow.geometry.topology import close_boundary
-from ncflow.io.atomic import atomic_path
+from ncflow.io.atomic import atomic_path, computed_once
 from ncflow.io.files import read_npz_arrays
 
 DEFAULT_EDGE_LENGTH_FAC = 0.1
@@ -428,29 +428,21 @@ def tissue_centroids(
     path = cache_root() / "tissue" / f"{h.hexdigest()[:32]}.npz"
     if not tc.cache:
         return _tetrahedralise(vertices, faces, tc, {"cached": False})
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        lock = open(path.with_suffix(".lock"), "a")
-    except OSError:  # an unwritable cache folder: compute without it
-        return _tetrahedralise(vertices, faces, tc, {"cached": False})
-    with lock:
-        import fcntl
 
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        if path.exists():
-            try:
-                c = np.asarray(read_npz_arrays(path, ("centroids",), ())["centroids"])
-                info = {"cached": True, "n_centroids": int(c.shape[0]), "seconds": 0.0}
-                return c, {**info, "cache_file": str(path), "sha256": centroids_digest(c)}
-            except Exception:  # a broken cache entry is recomputed
-                pass
-        c, info = _tetrahedralise(vertices, faces, tc, {"cached": False})
-        try:
-            write_tissue_file(path, c)
-            info["cache_file"] = str(path)
-        except OSError:
-            pass
-        return c, info
+    def read(entry):
+        return np.asarray(read_npz_arrays(entry, ("centroids",), ())["centroids"]), None
+
+    (c, info), entry, hit = computed_once(
+        path,
+        lambda: _tetrahedralise(vertices, faces, tc, {"cached": False}),
+        read,
+        lambda tmp, value: np.savez(tmp, centroids=value[0]),
+    )
+    if hit:
+        info = {"cached": True, "n_centroids": int(c.shape[0]), "seconds": 0.0, "sha256": centroids_digest(c)}
+    if entry is not None:
+        info["cache_file"] = str(entry)
+    return c, info
 
 
 def write_tissue_file(path, centroids: np.ndarray) -> None:

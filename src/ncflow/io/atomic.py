@@ -71,6 +71,40 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> None:
         tmp.write_text(text)
 
 
+def computed_once(path: str | os.PathLike, compute, read, write):
+    """``compute()``, kept in the file ``path`` (a cache entry ncflow owns): read back with
+    ``read(path)`` when the entry exists and reads (a broken one is computed again), else computed
+    and written atomically with ``write(temporary_path, value)``. Processes computing one entry at
+    once take a lock (``path`` with the suffix ``.lock``), so one computes and the others read its
+    entry. An unwritable folder only means computing without it.
+
+    Returns:
+        (value, the entry's path or None where none was written or read, whether it was read back).
+    """
+    import fcntl
+
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        lock = open(path.with_suffix(".lock"), "a")
+    except OSError:
+        return compute(), None, False
+    with lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if path.exists():
+            try:
+                return read(path), path, True
+            except Exception:  # a broken entry is computed again
+                pass
+        value = compute()
+        try:
+            with atomic_path(path) as tmp:
+                write(tmp, value)
+        except OSError:
+            return value, None, False
+        return value, path, False
+
+
 # ----------------------------------------------------------------------------------------------
 # Where a command writes
 

@@ -139,6 +139,7 @@ class Matcher:
         result.metrics["rollbacks"] = rollbacks
         result.metrics["pose_search"] = None if search is None else search.to_dict()
         result.metrics["placement_trials"] = list(self.problem.placement_trials)
+        result.metrics["setup_cache"] = dict(self.problem.setup_cache)
         result.metrics["skinning_weights"] = dict(self.problem.skinning_weights)
         timings["total"] = sum(v for k, v in timings.items() if k in ("setup", "train", "outputs"))
         return result

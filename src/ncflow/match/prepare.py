@@ -11,22 +11,30 @@ limbs of an articulated target — builds the topology tables and draws the soft
 from __future__ import annotations
 
 import dataclasses
+import functools
+import hashlib
+import json
 import time
+from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Float
 
+from ncflow.cache import cache_root
 from ncflow.errors import InputError
 from ncflow.geometry.decimate import Decimation, decimate
 from ncflow.geometry.mesh import Mesh
 from ncflow.geometry.normalize import Normalization, fit_normalization
 from ncflow.geometry.overlap import self_overlap
 from ncflow.geometry.topology import Topology, mesh_topology
+from ncflow.io.atomic import computed_once
+from ncflow.io.files import read_npz_arrays
 from ncflow.io.meshes import load_mesh
 from ncflow.match.placement import Placement, place_target, placement_candidates
 from ncflow.match.pose_search import PoseSearchResult, search_poses
 from ncflow.skeleton import Skeleton, check_inside, load_skeleton
+from ncflow.skeleton.kinematics import Pose
 from ncflow.tissue import centroids_digest, load_tissue_file, tissue_centroids
 
 DTYPE = jnp.float32  # training dtype (DESIGN.md: float32 for training)
@@ -57,6 +65,8 @@ class Problem:
         pose_search: the skeleton pose found for the chosen placement (None when the search is off).
         pose_search_seconds: wall time of the pose search(es).
         placement_trials: per placement candidate tried, its angle and articulated score.
+        setup_cache: whether the placement and the pose search were read back from the cache folder
+            (``hit``) and its entry (``file``, None when not kept; :func:`place_and_pose_cached`).
         skinning_weights: the skeleton-driven field's weight mode and why
             (:func:`skinning_weight_mode`).
     """
@@ -81,6 +91,7 @@ class Problem:
     pose_search: PoseSearchResult | None = None
     pose_search_seconds: float = 0.0
     placement_trials: tuple[dict, ...] = ()
+    setup_cache: dict = dataclasses.field(default_factory=lambda: {"hit": False, "file": None})
     skinning_weights: dict = dataclasses.field(
         default_factory=lambda: {
             "setting": "current",
@@ -173,6 +184,97 @@ def place_and_pose(src_v, src_f, tgt_v, tgt_f, skeleton: Skeleton, config, messa
     return placements[best], results[best], trials, t_place, time.perf_counter() - t0
 
 
+@functools.cache
+def code_digest() -> str:
+    """SHA-256 of ncflow's own source files and of the JAX and NumPy versions: part of the key of a
+    cached result, so a changed algorithm never reads an entry of another.
+    """
+    import jax
+
+    root = Path(__file__).resolve().parents[1]
+    h = hashlib.sha256(f"{jax.__version__} {np.__version__}".encode())
+    for path in sorted(root.rglob("*.py")):
+        h.update(str(path.relative_to(root)).encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()
+
+
+def _setup_key(src_v, src_f, tgt_v, tgt_f, skeleton: Skeleton, config) -> str:
+    h = hashlib.sha256()
+    for a in (src_v, tgt_v, skeleton.positions):
+        h.update(np.ascontiguousarray(a, np.float64).tobytes())
+        h.update(repr(np.shape(a)).encode())
+    for a in (src_f, tgt_f, skeleton.parents):
+        h.update(np.ascontiguousarray(a, np.int64).tobytes())
+        h.update(repr(np.shape(a)).encode())
+    settings = (config.placement, searches_pose(config), skinning_width(config, skeleton), config.seed)
+    h.update(repr(settings).encode())
+    h.update(code_digest().encode())
+    return h.hexdigest()[:32]
+
+
+def _write_setup(path, value) -> None:
+    placement, search, trials, t_place, t_search = value
+    arrays = {
+        "rotation": placement.rotation,
+        "translation": placement.translation,
+        "scores": np.array([placement.score, placement.identity_score], np.float64),
+        "moved": np.array(placement.moved),
+        "trials": np.array(json.dumps(list(trials))),
+        "seconds": np.array([t_place, t_search], np.float64),
+    }
+    if search is not None:
+        arrays.update(
+            pose_rotations=np.asarray(search.pose.rotations),
+            pose_translation=np.asarray(search.pose.translation),
+            search_scores=np.array([search.score, search.rest_score], np.float64),
+            hypotheses=np.array(search.hypotheses, np.int64),
+        )
+    np.savez(path, **arrays)
+
+
+def _read_setup(path):
+    a = read_npz_arrays(path, ("rotation", "translation", "scores", "moved", "trials", "seconds"))
+    score, identity_score = (float(x) for x in a["scores"])
+    placement = Placement(
+        np.asarray(a["rotation"], np.float64).reshape(3, 3),
+        np.asarray(a["translation"], np.float64).reshape(3),
+        score,
+        identity_score,
+        bool(a["moved"]),
+    )
+    search = None
+    if "pose_rotations" in a:
+        pose = Pose(jnp.asarray(a["pose_rotations"]), jnp.asarray(a["pose_translation"]))
+        score, rest_score = (float(x) for x in a["search_scores"])
+        search = PoseSearchResult(pose, score, rest_score, int(a["hypotheses"]))
+    trials = tuple(json.loads(str(a["trials"])))
+    return placement, search, trials, *(float(x) for x in a["seconds"])
+
+
+def place_and_pose_cached(src_v, src_f, tgt_v, tgt_f, skeleton: Skeleton, config, message=lambda text: None):
+    """:func:`place_and_pose`, kept in the cache folder (``setup/``) with ``setup_cache`` on: a run on
+    the same pair (the same normalised working source, target and skeleton, placement and pose
+    search settings, seed and ncflow code) with other training settings reads the placement and the
+    pose found back instead of searching again (on the shared MANO pair, about 23 of a warm
+    ``--steps 3`` run's 29 s). The entry holds the values themselves, so the results are those of
+    a run without it, bit for bit. Returns what :func:`place_and_pose` returns (the seconds the
+    search took now, ~0 when read back) and ``{"hit", "file"}``.
+    """
+
+    def compute():
+        return place_and_pose(src_v, src_f, tgt_v, tgt_f, skeleton, config, message)
+
+    if not config.setup_cache or (config.placement != "auto" and not searches_pose(config)):
+        return compute(), {"hit": False, "file": None}
+    t0 = time.perf_counter()
+    path = cache_root() / "setup" / f"{_setup_key(src_v, src_f, tgt_v, tgt_f, skeleton, config)}.npz"
+    value, entry, hit = computed_once(path, compute, _read_setup, _write_setup)
+    if hit:
+        value = (*value[:3], time.perf_counter() - t0, 0.0)
+    return value, {"hit": hit, "file": None if entry is None else str(entry)}
+
+
 def load_inputs(source, target, skeleton) -> tuple[Mesh, Mesh, Skeleton]:
     """Meshes and skeleton from objects or file paths (validated at the file boundary)."""
     src = source if isinstance(source, Mesh) else load_mesh(source)
@@ -248,7 +350,7 @@ def prepare(source, target, skeleton, config, message=lambda text: None, before_
     )
     if before_search is not None:
         before_search(problem)
-    placement, search, trials, t_place, t_search = place_and_pose(
+    (placement, search, trials, t_place, t_search), setup_cache = place_and_pose_cached(
         work.vertices, work.faces, tgt_v, tgt.faces, skel_n, config, message
     )
     return dataclasses.replace(
@@ -259,6 +361,7 @@ def prepare(source, target, skeleton, config, message=lambda text: None, before_
         pose_search=search,
         pose_search_seconds=t_search,
         placement_trials=trials,
+        setup_cache=setup_cache,
     )
 
 
