@@ -73,8 +73,15 @@ def test_a_broken_entry_is_computed_again_and_the_cache_can_be_off(pair, tmp_pat
     _same(first, again)
     _, info3 = _run(pair, cfg, monkeypatch, calls)
     assert calls == [1, 1] and info3["hit"]  # the entry was written again
+    # an entry that reads but holds a non-finite pose is computed again too
+    entry = dict(np.load(info["file"]))
+    entry["pose_rotations"] = np.full_like(entry["pose_rotations"], np.nan)
+    np.savez(info["file"], **entry)
+    again, _ = _run(pair, cfg, monkeypatch, calls)
+    assert calls == [1, 1, 1]
+    _same(first, again)
     off, info4 = _run(pair, apply_overrides(cfg, ["setup_cache=false"]), monkeypatch, calls)
-    assert calls == [1, 1, 1] and info4 == {"hit": False, "file": None}
+    assert calls == [1, 1, 1, 1] and info4 == {"hit": False, "file": None}
     _same(first, off)
     # nothing to keep without a placement or a pose search
     _, info5 = _run(pair, apply_overrides(cfg, ["placement=none", "pose_search=false"]), monkeypatch, calls)

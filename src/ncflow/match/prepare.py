@@ -233,8 +233,15 @@ def _write_setup(path, value) -> None:
     np.savez(path, **arrays)
 
 
-def _read_setup(path):
+def _read_setup(path, n_joints: int):
+    """The entry :func:`_write_setup` wrote; raises (the entry is then computed again) on anything
+    else: missing or misshapen arrays, non-finite numbers.
+    """
     a = read_npz_arrays(path, ("rotation", "translation", "scores", "moved", "trials", "seconds"))
+    shapes = {"rotation": (3, 3), "translation": (3,), "pose_rotations": (n_joints, 4), "pose_translation": (3,)}
+    for name, shape in shapes.items():
+        if name in a and (np.shape(a[name]) != shape or not np.all(np.isfinite(a[name]))):
+            raise ValueError(f"{path}: {name} is not a finite {shape} array")
     score, identity_score = (float(x) for x in a["scores"])
     placement = Placement(
         np.asarray(a["rotation"], np.float64).reshape(3, 3),
@@ -269,7 +276,9 @@ def place_and_pose_cached(src_v, src_f, tgt_v, tgt_f, skeleton: Skeleton, config
         return compute(), {"hit": False, "file": None}
     t0 = time.perf_counter()
     path = cache_root() / "setup" / f"{_setup_key(src_v, src_f, tgt_v, tgt_f, skeleton, config)}.npz"
-    value, entry, hit = computed_once(path, compute, _read_setup, _write_setup)
+    value, entry, hit = computed_once(
+        path, compute, functools.partial(_read_setup, n_joints=skeleton.n_joints), _write_setup
+    )
     if hit:
         value = (*value[:3], time.perf_counter() - t0, 0.0)
     return value, {"hit": hit, "file": None if entry is None else str(entry)}
