@@ -436,7 +436,7 @@ def tissue_centroids(
         path,
         lambda: _tetrahedralise(vertices, faces, tc, {"cached": False}),
         read,
-        lambda tmp, value: np.savez(tmp, centroids=value[0]),
+        lambda tmp, value: _save_centroids(tmp, value[0]),
     )
     if hit:
         info = {"cached": True, "n_centroids": int(c.shape[0]), "seconds": 0.0, "sha256": centroids_digest(c)}
@@ -452,7 +452,12 @@ def write_tissue_file(path, centroids: np.ndarray) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(path) as tmp:
-        np.savez(tmp, centroids=centroids)
+        _save_centroids(tmp, centroids)
+
+
+def _save_centroids(file, centroids: np.ndarray) -> None:
+    """The tissue file's format, written where told (a temporary sibling of the final name)."""
+    np.savez(file, centroids=centroids)
 
 
 def _tetrahedralise(vertices, faces, tc, info: dict) -> tuple[np.ndarray, dict]:

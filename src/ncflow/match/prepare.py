@@ -244,8 +244,8 @@ def _read_setup(path, n_joints: int):
             raise ValueError(f"{path}: {name} is not a finite {shape} array")
     score, identity_score = (float(x) for x in a["scores"])
     placement = Placement(
-        np.asarray(a["rotation"], np.float64).reshape(3, 3),
-        np.asarray(a["translation"], np.float64).reshape(3),
+        np.asarray(a["rotation"], np.float64),
+        np.asarray(a["translation"], np.float64),
         score,
         identity_score,
         bool(a["moved"]),
