@@ -15,6 +15,7 @@ from ncflow.geometry.overlap import self_overlap
 from ncflow.io.meshes import save_mesh
 from ncflow.io.result import read_result
 from ncflow.match.matcher import Matcher, match
+from ncflow.match.prepare import check_sizes, load_inputs, size_ratio
 from ncflow.skeleton import Skeleton, save_skeleton
 from ncflow.synthetic.shapes import bend, capsule
 
@@ -200,6 +201,7 @@ def test_cli_match_writes_contract_and_is_reproducible(tmp_path, pair, capsys):
         ("skeleton_as_mesh", "unsupported skeleton format"),
         ("degenerate", "zero area"),
         ("bad_setting", "flow.width must be at least 1"),
+        ("target_in_millimetres", "target_mm.ply: the target is 1.01e+03x the size of the source"),
     ],
 )
 def test_cli_match_bad_input_one_line_error_no_output(tmp_path, pair, capsys, case, message):
@@ -222,12 +224,46 @@ def test_cli_match_bad_input_one_line_error_no_output(tmp_path, pair, capsys, ca
         save_mesh(s, v, src.faces)
     elif case == "bad_setting":
         extra = ["--set", "flow.width=0"]
+    elif case == "target_in_millimetres":
+        t = str(tmp_path / "target_mm.ply")
+        save_mesh(t, pair[1].vertices * 1000.0, pair[1].faces)
     out = tmp_path / "out"
     rc = main(["match", s, t, "--skeleton", k, "--out", str(out), "--steps", "5", "--quiet"] + extra)
     err = capsys.readouterr().err.strip()
     assert rc == 2
     assert message in err and len(err.splitlines()) == 1
     assert not out.exists()
+
+
+@pytest.mark.parametrize("k", [0.5, 1.7, 1000.0])
+def test_size_ratio_is_the_scale_between_the_meshes(pair, k):
+    src, tgt, *_ = pair
+    assert size_ratio(tgt, Mesh(tgt.vertices * k + 3.0, tgt.faces)) == pytest.approx(k, rel=1e-9)
+    # another triangulation of the same capsule, bent: area kept to a few percent
+    assert size_ratio(src, tgt) == pytest.approx(1.0, abs=0.05)
+
+
+@pytest.mark.parametrize("k, warned", [(1.0, False), (1.2, False), (0.85, False), (1.5, True), (0.7, True)])
+def test_size_check_warns_beyond_a_quarter(pair, k, warned):
+    src = pair[0]
+    warnings = check_sizes(src, Mesh(src.vertices * k, src.faces, "t"))
+    assert len(warnings) == int(warned)
+    if warned:
+        assert f"{k:.3g}x the size of the source" in warnings[0]
+
+
+@pytest.mark.parametrize("k", [2.2, 0.4, 25.4, 1e-3])
+def test_size_check_refuses_another_scale_naming_the_target(pair, k):
+    src = pair[0]
+    message = f"^scaled.obj: the target is {k:.3g}x the size of the source .*different units"
+    with pytest.raises(InputError, match=message):
+        check_sizes(src, Mesh(src.vertices * k, src.faces, "scaled.obj"))
+
+
+def test_meshes_given_as_objects_are_validated(pair):
+    src, tgt, skel, *_ = pair
+    with pytest.raises(InputError, match="^huge: coordinates as large as"):
+        load_inputs(src, Mesh(tgt.vertices * 1e31, tgt.faces, "huge"), skel)
 
 
 def test_nan_during_training_is_reported_not_written(tmp_path, pair):

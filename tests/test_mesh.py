@@ -74,6 +74,44 @@ def test_validate_arrays_directly():
         validate_mesh(np.zeros_like(v), f)
 
 
+@pytest.mark.parametrize("scale", [1e29, 1e-29])
+def test_coordinates_float32_outputs_hold_are_accepted(scale):
+    v, f = sphere(1)  # radius 1: coordinates up to 1, 2 across
+    validate_mesh(v * scale, f)
+
+
+@pytest.mark.parametrize(
+    "scale, message",
+    # the unit sphere's bounding box is 2√3 = 3.46 across
+    [
+        (1e31, r"big.ply: coordinates as large as 1e\+31: beyond ±1e\+30"),
+        (1e-31, "big.ply: the mesh is only 3.46e-31 across"),
+    ],
+)
+def test_coordinates_float32_outputs_cannot_hold_are_refused(scale, message):
+    v, f = sphere(1)
+    with pytest.raises(InputError, match=message):
+        validate_mesh(v * scale, f, name="big.ply")
+
+
+def test_text_mesh_that_is_not_utf8_is_read(tmp_path):
+    v, f = capsule(n_around=8, n_along=5)
+    plain = tmp_path / "plain.obj"
+    save_mesh(plain, v, f)
+    latin = tmp_path / "latin.obj"
+    latin.write_bytes("# exporté par un logiciel\n".encode("latin-1") + plain.read_bytes())
+    a, b = load_mesh(plain), load_mesh(latin)
+    np.testing.assert_array_equal(a.vertices, b.vertices)
+    np.testing.assert_array_equal(a.faces, b.faces)
+
+
+def test_random_bytes_as_a_mesh_are_one_line_error(tmp_path):
+    path = tmp_path / "noise.obj"
+    path.write_bytes(np.random.default_rng(0).integers(0, 256, 5000, dtype=np.uint8).tobytes())
+    with pytest.raises(InputError, match="noise.obj: no faces"):
+        load_mesh(path)
+
+
 def test_roundtrip_keeps_vertex_order(tmp_path):
     v, f = capsule(n_around=10, n_along=6)
     perm = np.random.default_rng(0).permutation(len(v))

@@ -104,6 +104,15 @@ def vertex_normals(vertices: Float[np.ndarray, "V 3"], faces: Int[np.ndarray, "F
     return np.divide(out, norm, out=np.zeros_like(out), where=norm > 0)
 
 
+COORDINATE_LIMIT = 1e30
+"""The largest coordinate magnitude accepted: outputs are written in the input's units at float32
+(largest finite value 3.4e38), with room for the flow to move points beyond the input's extent."""
+
+SMALLEST_EXTENT = 1e-30
+"""The smallest bounding-box diagonal accepted: well above float32's smallest normal number
+(1.2e-38), so the outputs keep their seven digits."""
+
+
 def _check_finite_and_range(vertices: np.ndarray, faces: np.ndarray, name: str | None) -> None:
     if vertices.ndim != 2 or vertices.shape[1] != 3 or vertices.shape[0] == 0:
         raise InputError(f"expected (V, 3) vertex coordinates, got shape {vertices.shape}", name)
@@ -135,7 +144,8 @@ def validate_mesh(
 ) -> None:
     """Check that a mesh is usable; raise :class:`InputError` with one line otherwise.
 
-    Checks: (V, 3) finite coordinates, (F, 3) faces with indices in range, at least one face, at
+    Checks: (V, 3) finite coordinates within ±:data:`COORDINATE_LIMIT` on a mesh at least
+    :data:`SMALLEST_EXTENT` across, (F, 3) faces with indices in range, at least one face, at
     most ``max_degenerate_fraction`` of faces with area below ``area_tol`` × (bounding-box
     diagonal)², and no edge shared by more than 4 faces.
     """
@@ -145,6 +155,19 @@ def validate_mesh(
     diag = float(np.linalg.norm(vertices.max(0) - vertices.min(0)))
     if diag == 0.0:
         raise InputError("all vertices coincide (zero-size mesh)", name)
+    largest = float(np.abs(vertices).max())
+    if largest > COORDINATE_LIMIT:
+        raise InputError(
+            f"coordinates as large as {largest:.3g}: beyond ±{COORDINATE_LIMIT:g}, which ncflow's float32 "
+            "outputs cannot hold; scale the mesh down",
+            name,
+        )
+    if diag < SMALLEST_EXTENT:
+        raise InputError(
+            f"the mesh is only {diag:.3g} across: below {SMALLEST_EXTENT:g}, which ncflow's float32 outputs "
+            "cannot resolve; scale the mesh up",
+            name,
+        )
     areas = face_areas(vertices, faces)
     degenerate = areas <= area_tol * diag**2
     n_deg = int(degenerate.sum())

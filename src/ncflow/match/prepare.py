@@ -24,7 +24,7 @@ from jaxtyping import Float
 from ncflow.cache import cache_root
 from ncflow.errors import InputError
 from ncflow.geometry.decimate import Decimation, decimate
-from ncflow.geometry.mesh import Mesh
+from ncflow.geometry.mesh import Mesh, face_areas, validate_mesh
 from ncflow.geometry.normalize import Normalization, fit_normalization
 from ncflow.geometry.overlap import self_overlap
 from ncflow.geometry.topology import Topology, mesh_topology
@@ -59,7 +59,8 @@ class Problem:
         bone_radii: (B,) bone-sample radius factor per bone.
         centroids: (K, 3) soft-tissue tet centroids of the normalised source ((0, 3) when disabled).
         tissue_info: how the centroids were obtained (cache hit, counts, seconds).
-        warnings: joints slightly outside the source surface.
+        warnings: a target of somewhat another size than the source; joints slightly outside the
+            source surface.
         tissue_seconds: wall time of obtaining the centroids.
         placement_seconds: wall time of the placement (its pose searches excluded).
         pose_search: the skeleton pose found for the chosen placement (None when the search is off).
@@ -284,12 +285,59 @@ def place_and_pose_cached(src_v, src_f, tgt_v, tgt_f, skeleton: Skeleton, config
     return value, {"hit": hit, "file": None if entry is None else str(entry)}
 
 
+def _mesh(mesh) -> Mesh:
+    if isinstance(mesh, Mesh):
+        validate_mesh(mesh.vertices, mesh.faces, name=mesh.name)  # what load_mesh checks of a file
+        return mesh
+    return load_mesh(mesh)
+
+
 def load_inputs(source, target, skeleton) -> tuple[Mesh, Mesh, Skeleton]:
-    """Meshes and skeleton from objects or file paths (validated at the file boundary)."""
-    src = source if isinstance(source, Mesh) else load_mesh(source)
-    tgt = target if isinstance(target, Mesh) else load_mesh(target)
+    """Meshes and skeleton from objects or file paths, validated (meshes given as objects too:
+    :func:`~ncflow.geometry.mesh.validate_mesh`).
+    """
     skel = skeleton if isinstance(skeleton, Skeleton) else load_skeleton(skeleton)
-    return src, tgt, skel
+    return _mesh(source), _mesh(target), skel
+
+
+SIZE_RATIO_LIMIT = 2.0
+"""The most the target's size may differ from the source's, either way (:func:`check_sizes`)."""
+
+SIZE_RATIO_WARNING = 1.25
+"""Beyond this size ratio, either way, a run goes on with a warning (:func:`check_sizes`)."""
+
+
+def size_ratio(src: Mesh, tgt: Mesh) -> float:
+    """The target's size relative to the source's: √(target area / source area), in the files' units.
+    Articulation keeps a surface's area (skin stretches by some percent), and so do triangulation
+    and resolution, so one character in two poses has a ratio near 1.
+    """
+    return float(np.sqrt(face_areas(tgt.vertices, tgt.faces).sum() / face_areas(src.vertices, src.faces).sum()))
+
+
+def check_sizes(src: Mesh, tgt: Mesh) -> list[str]:
+    """A warning when the target's :func:`size_ratio` to the source is beyond
+    :data:`SIZE_RATIO_WARNING` either way; an :class:`InputError` naming the target beyond
+    :data:`SIZE_RATIO_LIMIT`. ncflow normalises both meshes by one similarity (DESIGN.md
+    "Normalisation") and matches one character at one scale: a target in other units (millimetres
+    against metres, inches against centimetres) would otherwise give a meaningless result without
+    a word.
+    """
+    ratio = size_ratio(src, tgt)
+    if not np.isfinite(ratio) or max(ratio, 1.0 / ratio) > SIZE_RATIO_LIMIT:
+        raise InputError(
+            f"the target is {ratio:.3g}x the size of the source {src.name or ''} (the square root of their "
+            f"surface areas' ratio; at most {SIZE_RATIO_LIMIT:g}x either way): ncflow matches one character "
+            "in two poses at one scale; are the files in different units (millimetres and metres: 1000x)? "
+            "Scale one of them",
+            tgt.name,
+        )
+    if max(ratio, 1.0 / ratio) > SIZE_RATIO_WARNING:
+        return [
+            f"the target is {ratio:.3g}x the size of the source (the square root of their surface areas' "
+            "ratio): ncflow matches one character at one scale"
+        ]
+    return []
 
 
 def check_skeleton_placement(skel: Skeleton, src: Mesh) -> list[str]:
@@ -320,7 +368,7 @@ def prepare(source, target, skeleton, config, message=lambda text: None, before_
             compiled programs depend on is known then (:mod:`ncflow.match.ahead`).
     """
     src, tgt, skel = load_inputs(source, target, skeleton)
-    warnings = check_skeleton_placement(skel, src)
+    warnings = check_sizes(src, tgt) + check_skeleton_placement(skel, src)
     for w in warnings:
         message(f"warning: {w}")
     norm, src_v, work = working_source(src, config, message)
