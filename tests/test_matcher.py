@@ -15,7 +15,7 @@ from ncflow.geometry.overlap import self_overlap
 from ncflow.io.meshes import save_mesh
 from ncflow.io.result import read_result
 from ncflow.match.matcher import Matcher, match
-from ncflow.match.prepare import check_sizes, load_inputs, size_ratio
+from ncflow.match.prepare import check_sizes, load_inputs, prepare, size_ratio
 from ncflow.skeleton import Skeleton, save_skeleton
 from ncflow.synthetic.shapes import bend, capsule
 
@@ -258,6 +258,27 @@ def test_size_check_refuses_another_scale_naming_the_target(pair, k):
     message = f"^scaled.obj: the target is {k:.3g}x the size of the source .*different units"
     with pytest.raises(InputError, match=message):
         check_sizes(src, Mesh(src.vertices * k, src.faces, "scaled.obj"))
+
+
+@pytest.mark.parametrize("which", ["target", "source", "both"])
+def test_a_mesh_wound_inside_out_is_matched_wound_as_the_other(pair, which):
+    """Against the problem of the pair as given: the target's edge tables (what its measures are
+    built from) wind as the source's, the target kept as given for the outputs."""
+    src, tgt, skel, *_ = pair
+    cfg = small_config(placement="none", pose_search="false")
+    given = prepare(src, tgt, skel, cfg)
+    assert given.warnings == ()
+    s = Mesh(src.vertices, src.faces[:, ::-1], "s") if which in ("source", "both") else src
+    t = Mesh(tgt.vertices, tgt.faces[:, ::-1], "t") if which in ("target", "both") else tgt
+    problem = prepare(s, t, skel, cfg)
+    assert problem.target.faces is t.faces
+    turned = [w for w in problem.warnings if "wind the other way" in w]
+    assert len(turned) == (which != "both")
+    ref, got = given.target_topology, problem.target_topology
+    np.testing.assert_array_equal(got.edges, ref.edges)
+    np.testing.assert_array_equal(got.edge_faces, ref.edge_faces)
+    # the target winds as the source (reversed source: reversed signs)
+    np.testing.assert_array_equal(got.edge_signs, ref.edge_signs * (-1 if which in ("source", "both") else 1))
 
 
 def test_meshes_given_as_objects_are_validated(pair):

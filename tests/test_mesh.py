@@ -5,7 +5,7 @@ import pytest
 import trimesh
 
 from ncflow.errors import InputError
-from ncflow.geometry.mesh import enclosed_volume, validate_mesh, weld_vertices
+from ncflow.geometry.mesh import enclosed_volume, orientation, validate_mesh, weld_vertices
 from ncflow.geometry.normalize import fit_normalization
 from ncflow.geometry.topology import close_boundary, mesh_topology
 from ncflow.io.meshes import load_mesh, save_mesh
@@ -92,6 +92,26 @@ def test_coordinates_float32_outputs_cannot_hold_are_refused(scale, message):
     v, f = sphere(1)
     with pytest.raises(InputError, match=message):
         validate_mesh(v * scale, f, name="big.ply")
+
+
+def test_orientation_outward_inward_and_undecided():
+    v, f = sphere(2)
+    assert orientation(v, f) == 1 and orientation(v, f[:, ::-1]) == -1
+    # an open surface (a capsule without one cap's faces) is closed before its volume is taken
+    cv, cf = capsule(n_around=10, n_along=6)
+    open_f = cf[~np.any(cv[cf][:, :, 2] > 1.2, axis=1)]
+    assert open_f.shape[0] < cf.shape[0]
+    assert orientation(cv, open_f) == 1 and orientation(cv, open_f[:, ::-1]) == -1
+    # a flat sheet encloses nothing: no side to tell
+    g = np.stack(np.meshgrid(np.arange(4.0), np.arange(4.0), indexing="ij"), -1).reshape(-1, 2)
+    sheet_v = np.column_stack([g, np.zeros(len(g))])
+    sheet_f = np.array([[i * 4 + j, i * 4 + j + 1, i * 4 + j + 4] for i in range(3) for j in range(3)])
+    assert orientation(sheet_v, sheet_f) == 0 and orientation(sheet_v, sheet_f[:, ::-1]) == 0
+    # a tenth of the faces wound against the rest: the side most of the volume comes from
+    mixed = f.copy()
+    flip = np.random.default_rng(0).random(len(f)) < 0.1
+    mixed[flip] = mixed[flip][:, ::-1]
+    assert orientation(v, mixed) == 1
 
 
 def test_text_mesh_that_is_not_utf8_is_read(tmp_path):
