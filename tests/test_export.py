@@ -444,6 +444,17 @@ def test_read_result_names_bad_files(tmp_path, sphere):
     np.savez(out / "map_tgt_to_src.npz", face=np.zeros(3, dtype=np.int64))
     with pytest.raises(InputError, match=r"map_tgt_to_src\.npz: missing array 'bary'"):
         read_result(out)
+    maps = inputs["maps"]
+    bary = np.array(maps["map_bary"], dtype=np.float64)
+    bary[1] = [np.nan, 0.5, 0.5]
+    np.savez(out / "map_tgt_to_src.npz", face=maps["map_face"], bary=bary)
+    with pytest.raises(
+        InputError, match=r"map_tgt_to_src\.npz: 'bary' has NaN or infinite values in 1 rows \(first: row 1\)"
+    ):
+        read_result(out)
+    np.savez(out / "map_tgt_to_src.npz", face=maps["map_face"], bary=bary[:, :2])
+    with pytest.raises(InputError, match=r"map_tgt_to_src\.npz: 'bary' must have shape \(\d+, 3\), got \(\d+, 2\)"):
+        read_result(out)
     out = write_result(tmp_path / "res3", **inputs)
     (out / "frames" / "frame_0000.ply").unlink()
     with pytest.raises(InputError, match=r"frames: frame numbers are not 0\.\.0 \(missing frame_0000\.ply\)"):

@@ -446,8 +446,13 @@ def read_result(out_dir: str | os.PathLike, *, check_animation: bool = True) -> 
         got = f"shape {short_repr(face.shape, 40)} dtype {dtype_text(face.dtype)}"
         raise InputError(f"'face' must be a 1-D integer array, got {got}", npz_path)
     nt = face.shape[0]
-    if bary.shape != (nt, 3) or not np.all(np.isfinite(bary)):
-        raise InputError(f"'bary' must be finite with shape ({nt}, 3), got {bary.shape}", npz_path)
+    if bary.shape != (nt, 3):
+        raise InputError(f"'bary' must have shape ({nt}, 3), got {short_repr(bary.shape, 40)}", npz_path)
+    bad = ~np.all(np.isfinite(bary), axis=1)
+    if np.any(bad):
+        raise InputError(
+            f"'bary' has NaN or infinite values in {int(bad.sum())} rows (first: row {int(np.argmax(bad))})", npz_path
+        )
     if nt and (face.min() < 0 or face.max() >= faces.shape[0]):
         raise InputError(f"'face' indices outside [0, {faces.shape[0]}) (source faces)", npz_path)
     p2p = {}
