@@ -719,7 +719,12 @@ def test_quoted_file_values_are_cut_short(tmp_path):
     off.write_text(f"OFF\n3 {len(sizes)} 0\n0 0 0\n1 0 0\n0 1 0\n{faces}\n")
     with pytest.raises(InputError) as ei:
         load_mesh(off)
-    assert "[4, 5, 6, 7, 8, ...] corners" in _bounded(ei, off)
+    assert "polygons of several sizes" in _bounded(ei, off)
+    obj_poly = tmp_path / "polygons.obj"  # the same as OBJ faces: split, and the note cut short
+    obj_faces = "".join("f " + " ".join(str(i % 3 + 1) for i in range(k)) + "\n" for k in sizes)
+    obj_poly.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\n" + obj_faces)
+    note = load_mesh(obj_poly, validate=False).notes[0]
+    assert note.startswith("300 of 300 faces have [4, 5, 6, 7, 8, ...] corners") and len(note) < 400
 
     structured = np.zeros(3, dtype=[(f"field_{k:04d}", "<f8") for k in range(300)])  # a 9000-character dtype
     for name, read in (("values.npy", lambda p: read_vertex_array(p, 3)), ("index.npy", read_index_file)):

@@ -274,11 +274,20 @@ def test_a_mesh_wound_inside_out_is_matched_wound_as_the_other(pair, which):
     assert problem.target.faces is t.faces
     turned = [w for w in problem.warnings if "wind the other way" in w]
     assert len(turned) == (which != "both")
+    assert [w for w in problem.warnings if w not in turned] == []
     ref, got = given.target_topology, problem.target_topology
     np.testing.assert_array_equal(got.edges, ref.edges)
     np.testing.assert_array_equal(got.edge_faces, ref.edge_faces)
     # the target winds as the source (reversed source: reversed signs)
     np.testing.assert_array_equal(got.edge_signs, ref.edge_signs * (-1 if which in ("source", "both") else 1))
+
+
+def test_what_the_reader_changed_is_a_warning_of_the_match(pair):
+    src, tgt, skel, *_ = pair
+    cfg = small_config(placement="none", pose_search="false")
+    s = Mesh(src.vertices, src.faces, "s.obj", notes=("3 of 9 faces have [4] corners: split into triangles",))
+    problem = prepare(s, tgt, skel, cfg)
+    assert problem.warnings == ("s.obj: 3 of 9 faces have [4] corners: split into triangles",)
 
 
 def test_meshes_given_as_objects_are_validated(pair):

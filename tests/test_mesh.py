@@ -24,15 +24,8 @@ def write(tmp_path, name, text):
     "name, text, message",
     [
         ("empty.obj", "v 0 0 0\nv 1 0 0\n", "no faces"),
-        ("quad.obj", "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n", "non-triangular"),
-        ("quad.off", "OFF\n4 1 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3\n", "non-triangular"),
-        (
-            "quad.ply",
-            "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\n"
-            "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
-            "0 0 0\n1 0 0\n1 1 0\n0 1 0\n4 0 1 2 3\n",
-            "non-triangular",
-        ),
+        ("line.obj", "v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 3\nf 1 2\n", "1 of 2 faces have fewer than 3 corners"),
+        ("line.off", "OFF\n3 2 0\n0 0 0\n1 0 0\n1 1 0\n3 0 1 2\n2 0 1\n", "fewer than 3 corners"),
         ("nan.obj", "v 0 0 nan\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "NaN or infinite"),
         ("inf.off", "OFF\n3 1 0\n0 0 inf\n1 0 0\n0 1 0\n3 0 1 2\n", "NaN or infinite"),
         ("range.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n", "out of range"),
@@ -112,6 +105,43 @@ def test_orientation_outward_inward_and_undecided():
     flip = np.random.default_rng(0).random(len(f)) < 0.1
     mixed[flip] = mixed[flip][:, ::-1]
     assert orientation(v, mixed) == 1
+
+
+QUAD_V = "0 0 0\n1 0 0\n1 1 0\n0 1 0\n0.5 1.5 0\n2 0 0\n"  # a quad, a pentagon on it, a triangle
+
+
+@pytest.mark.parametrize(
+    "name, text",
+    [
+        ("poly.obj", "".join(f"v {ln}\n" for ln in QUAD_V.splitlines()) + "f 1 2 3 4\nf 4 3 5\nf 2 6 3\nf 1 2 6 3 5\n"),
+        (
+            "poly.ply",
+            "ply\nformat ascii 1.0\nelement vertex 6\nproperty float x\nproperty float y\nproperty float z\n"
+            "element face 4\nproperty list uchar int vertex_indices\nend_header\n"
+            + QUAD_V
+            + "4 0 1 2 3\n3 3 2 4\n3 1 5 2\n5 0 1 5 2 4\n",
+        ),
+    ],
+)
+def test_polygons_are_split_into_triangles_and_counted(tmp_path, name, text):
+    m = load_mesh(write(tmp_path, name, text), validate=False)  # the faces overlap: only the split is tested
+    # quad (0 1 2 3) along the diagonal from its first corner, pentagon (0 1 5 2 4) as a fan from it
+    expected = [[0, 1, 2], [2, 3, 0], [3, 2, 4], [1, 5, 2], [0, 1, 5], [0, 5, 2], [0, 2, 4]]
+    assert sorted(map(sorted, m.faces.tolist())) == sorted(map(sorted, expected))
+    np.testing.assert_allclose(m.vertices, np.array([ln.split() for ln in QUAD_V.splitlines()], float))
+    (note,) = m.notes
+    assert note.startswith("2 of 4 faces have [4, 5] corners: split into triangles")
+
+
+def test_off_polygons_split_when_all_one_size(tmp_path):
+    m = load_mesh(write(tmp_path, "quads.off", "OFF\n6 2 0\n" + QUAD_V + "4 0 1 2 3\n4 1 5 4 2\n"), validate=False)
+    assert sorted(m.faces.tolist()) == [[0, 1, 2], [1, 5, 4], [2, 3, 0], [4, 2, 1]]
+    assert m.notes[0].startswith("2 of 2 faces have [4] corners")
+    tri_quad = load_mesh(write(tmp_path, "tq.off", "OFF\n6 2 0\n" + QUAD_V + "4 0 1 2 3\n3 1 5 2\n"), validate=False)
+    assert sorted(tri_quad.faces.tolist()) == [[0, 1, 2], [1, 5, 2], [2, 3, 0]]
+    mixed = write(tmp_path, "mixed.off", "OFF\n6 2 0\n" + QUAD_V + "4 0 1 2 3\n5 0 1 5 2 4\n")
+    with pytest.raises(InputError, match="mixed.off: polygons of several sizes in an OFF file"):
+        load_mesh(mixed)
 
 
 def test_text_mesh_that_is_not_utf8_is_read(tmp_path):

@@ -32,12 +32,14 @@ class Mesh:
         name: where it came from (a file path) or a label; used in error messages.
         file_index: (V,) index of each vertex in the file's own vertex list (identity unless
             the reader welded duplicates).
+        notes: what the reader changed that a user should hear of (polygons split into triangles).
     """
 
     vertices: Float[np.ndarray, "V 3"]
     faces: Int[np.ndarray, "F 3"]
     name: str | None = None
     file_index: Int[np.ndarray, " V"] | None = None
+    notes: tuple[str, ...] = ()
 
     @property
     def n_vertices(self) -> int:

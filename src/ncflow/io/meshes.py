@@ -3,8 +3,10 @@
 :func:`load_mesh` never reorders vertices. Exactly coincident vertices are merged ("welded") only
 for the formats that store split vertices by construction (STL triangle soups, glTF/GLB seam
 duplicates), or when asked, and the map back to the file's vertices is kept in
-:attr:`~ncflow.geometry.mesh.Mesh.file_index`. Polygons other than triangles are refused (with
-their count) rather than triangulated silently, and every mesh is validated
+:attr:`~ncflow.geometry.mesh.Mesh.file_index`. Polygons (quads from a modelling package) are split
+into triangles without new vertices, and said so: :attr:`~ncflow.geometry.mesh.Mesh.notes` counts
+them (OBJ, OFF and ASCII PLY, whose face sizes are read before trimesh splits them), and the
+matcher repeats it as a warning. Every mesh is validated
 (:func:`~ncflow.geometry.mesh.validate_mesh`). :func:`save_mesh` is the one mesh writer: by suffix,
 in the given vertex order, atomically, at float32 (through trimesh) or float64 precision.
 
@@ -231,7 +233,8 @@ def _mesh_arrays(loaded, path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def load_mesh(path: str | os.PathLike, *, weld: bool | None = None, validate: bool = True) -> Mesh:
-    """Read a triangle mesh from OBJ, PLY, OFF, STL, glTF or GLB.
+    """Read a triangle mesh from OBJ, PLY, OFF, STL, glTF or GLB (polygons split into triangles,
+    counted in :attr:`~ncflow.geometry.mesh.Mesh.notes`).
 
     Args:
         path: the file.
@@ -248,14 +251,10 @@ def load_mesh(path: str | os.PathLike, *, weld: bool | None = None, validate: bo
     path = Path(path)
     suffix = check_input_file(path, "mesh", MESH_SUFFIXES)
     sizes = _declared_polygon_sizes(path)
-    if sizes is not None and sizes.size and np.any(sizes != 3):
-        bad = int(np.sum(sizes != 3))
-        kinds = np.unique(sizes[sizes != 3])
-        shown = ", ".join(str(k) for k in kinds[:5].tolist()) + (", ..." if kinds.size > 5 else "")
-        raise InputError(
-            f"non-triangular faces: {bad} of {sizes.size} faces have [{shown}] corners; triangulate the mesh first",
-            path,
-        )
+    polygons = 0 if sizes is None else int(np.sum(sizes > 3))
+    if sizes is not None and np.any(sizes < 3):
+        bad = sizes[sizes < 3]
+        raise InputError(f"{bad.size} of {sizes.size} faces have fewer than 3 corners (first: {int(bad[0])})", path)
     try:
         loaded = _load_trimesh(path, suffix)
     except InputError:
@@ -265,6 +264,11 @@ def load_mesh(path: str | os.PathLike, *, weld: bool | None = None, validate: bo
             raise InputError("face index out of range", path) from None
         raise InputError("cannot read mesh (corrupt or truncated file)", path) from None
     except Exception as exc:  # trimesh raises many kinds of errors for broken files
+        if suffix == ".off" and polygons and np.unique(sizes).size > 1:
+            raise InputError(
+                "polygons of several sizes in an OFF file, which trimesh cannot split; triangulate the mesh first",
+                path,
+            ) from None
         msg = first_line(exc)
         if "outside the range" in msg or "out of bounds" in msg:
             raise InputError("face index out of range", path) from None
@@ -274,6 +278,16 @@ def load_mesh(path: str | os.PathLike, *, weld: bool | None = None, validate: bo
         raise InputError("no faces (a point cloud or an empty file?)", path)
     if faces.ndim != 2 or faces.shape[1] != 3:
         raise InputError(f"non-triangular faces (shape {faces.shape})", path)
+    notes = ()
+    if polygons:
+        if faces.shape[0] != int(np.sum(sizes - 2)):
+            raise InputError(f"cannot split its {polygons} polygon faces into triangles", path)
+        kinds = np.unique(sizes[sizes > 3])
+        shown = ", ".join(str(k) for k in kinds[:5].tolist()) + (", ..." if kinds.size > 5 else "")
+        notes = (
+            f"{polygons} of {sizes.size} faces have [{shown}] corners: split into triangles (a quad along the "
+            "diagonal from its first corner, larger polygons as fans from it); the outputs use the triangles",
+        )
     file_index = np.arange(vertices.shape[0])
     if weld is None:
         weld = suffix in _WELD_BY_DEFAULT
@@ -281,7 +295,7 @@ def load_mesh(path: str | os.PathLike, *, weld: bool | None = None, validate: bo
         _check_finite_and_range(vertices, faces, str(path))
     if weld:
         vertices, faces, file_index = weld_vertices(vertices, faces)
-    mesh = Mesh(vertices=vertices, faces=faces, name=str(path), file_index=file_index)
+    mesh = Mesh(vertices=vertices, faces=faces, name=str(path), file_index=file_index, notes=notes)
     if validate:
         validate_mesh(mesh.vertices, mesh.faces, name=mesh.name)
     return mesh

@@ -60,8 +60,8 @@ class Problem:
         bone_radii: (B,) bone-sample radius factor per bone.
         centroids: (K, 3) soft-tissue tet centroids of the normalised source ((0, 3) when disabled).
         tissue_info: how the centroids were obtained (cache hit, counts, seconds).
-        warnings: a target of somewhat another size than the source, or wound the other way;
-            joints slightly outside the source surface.
+        warnings: polygons the reader split into triangles; a target of somewhat another size than
+            the source, or wound the other way; joints slightly outside the source surface.
         tissue_seconds: wall time of obtaining the centroids.
         placement_seconds: wall time of the placement (its pose searches excluded).
         pose_search: the skeleton pose found for the chosen placement (None when the search is off).
@@ -389,7 +389,8 @@ def prepare(source, target, skeleton, config, message=lambda text: None, before_
     """
     src, tgt, skel = load_inputs(source, target, skeleton)
     tgt_f, turned = target_faces_like_source(src, tgt)
-    warnings = check_sizes(src, tgt) + turned + check_skeleton_placement(skel, src)
+    notes = [f"{mesh.name}: {note}" for mesh in (src, tgt) for note in mesh.notes]
+    warnings = notes + check_sizes(src, tgt) + turned + check_skeleton_placement(skel, src)
     for w in warnings:
         message(f"warning: {w}")
     norm, src_v, work = working_source(src, config, message)
