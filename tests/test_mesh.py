@@ -133,6 +133,21 @@ def test_polygons_are_split_into_triangles_and_counted(tmp_path, name, text):
     assert note.startswith("2 of 4 faces have [4, 5] corners: split into triangles")
 
 
+def test_binary_ply_polygons_split_and_counted(tmp_path):
+    path = tmp_path / "quads.ply"
+    header = (
+        "ply\nformat binary_little_endian 1.0\nelement vertex 6\nproperty float x\nproperty float y\n"
+        "property float z\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n"
+    )
+    body = np.array([ln.split() for ln in QUAD_V.splitlines()], "<f4").tobytes()
+    for quad in ([0, 1, 2, 3], [1, 5, 4, 2]):
+        body += bytes([4]) + np.array(quad, "<i4").tobytes()
+    path.write_bytes(header.encode() + body)
+    m = load_mesh(path, validate=False)
+    assert sorted(m.faces.tolist()) == [[0, 1, 2], [1, 5, 4], [2, 3, 0], [4, 2, 1]]
+    assert m.notes[0].startswith("its 2 faces became 4 triangles: polygons split")
+
+
 def test_off_polygons_split_when_all_one_size(tmp_path):
     m = load_mesh(write(tmp_path, "quads.off", "OFF\n6 2 0\n" + QUAD_V + "4 0 1 2 3\n4 1 5 4 2\n"), validate=False)
     assert sorted(m.faces.tolist()) == [[0, 1, 2], [1, 5, 4], [2, 3, 0], [4, 2, 1]]

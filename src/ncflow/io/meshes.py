@@ -5,8 +5,8 @@ for the formats that store split vertices by construction (STL triangle soups, g
 duplicates), or when asked, and the map back to the file's vertices is kept in
 :attr:`~ncflow.geometry.mesh.Mesh.file_index`. Polygons (quads from a modelling package) are split
 into triangles without new vertices, and said so: :attr:`~ncflow.geometry.mesh.Mesh.notes` counts
-them (OBJ, OFF and ASCII PLY, whose face sizes are read before trimesh splits them), and the
-matcher repeats it as a warning. Every mesh is validated
+them (OBJ, OFF and ASCII PLY, whose face sizes are read before trimesh splits them; a binary PLY by
+its header's face count), and the matcher repeats it as a warning. Every mesh is validated
 (:func:`~ncflow.geometry.mesh.validate_mesh`). :func:`save_mesh` is the one mesh writer: by suffix,
 in the given vertex order, atomically, at float32 (through trimesh) or float64 precision.
 
@@ -96,6 +96,17 @@ def _declared_polygon_sizes(path: Path) -> np.ndarray | None:
     except (OSError, ValueError, IndexError, OverflowError):
         return None
     return None
+
+
+def _ply_face_count(path: Path) -> int | None:
+    """The face count a PLY header declares (None if unreadable)."""
+    try:
+        with open(path, "rb") as fh:
+            header = fh.read(4096).split(b"end_header")[0].decode("ascii", "replace")
+    except OSError:
+        return None
+    found = re.search(r"element face (\d+)", header)
+    return int(found.group(1)) if found else None
 
 
 def _confined_resolver(path: Path):
@@ -279,6 +290,12 @@ def load_mesh(path: str | os.PathLike, *, weld: bool | None = None, validate: bo
     if faces.ndim != 2 or faces.shape[1] != 3:
         raise InputError(f"non-triangular faces (shape {faces.shape})", path)
     notes = ()
+    declared = _ply_face_count(path) if sizes is None and suffix == ".ply" else None
+    if declared is not None and faces.shape[0] > declared:  # a binary PLY: its polygons' sizes unread
+        notes = (
+            f"its {declared} faces became {faces.shape[0]} triangles: polygons split (a quad along the diagonal "
+            "from its first corner, larger polygons as fans from it); the outputs use the triangles",
+        )
     if polygons:
         if faces.shape[0] != int(np.sum(sizes - 2)):
             raise InputError(f"cannot split its {polygons} polygon faces into triangles", path)
