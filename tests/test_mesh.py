@@ -105,6 +105,13 @@ def test_orientation_outward_inward_and_undecided():
     flip = np.random.default_rng(0).random(len(f)) < 0.1
     mixed[flip] = mixed[flip][:, ::-1]
     assert orientation(v, mixed) == 1
+    # ... wherever the mesh lies: a contiguous cap of a fifth of the area reversed, far from the origin
+    cap = f[v[f].mean(axis=1)[:, 2] > 0.6]
+    patched = np.concatenate([f[v[f].mean(axis=1)[:, 2] <= 0.6], cap[:, ::-1]])
+    assert 0.1 < len(cap) / len(f) < 0.3
+    for offset in ([0, 0, 0], [0, 0, 10.0], [0, 0, -1e3], [5e3, 0, 0]):
+        assert orientation(v + np.array(offset), patched) == 1
+        assert orientation(v + np.array(offset), patched[:, ::-1]) == -1
 
 
 QUAD_V = "0 0 0\n1 0 0\n1 1 0\n0 1 0\n0.5 1.5 0\n2 0 0\n"  # a quad, a pentagon on it, a triangle

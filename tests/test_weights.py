@@ -202,6 +202,10 @@ def test_transfer_inpaints_unreliable_vertices(sphere):
     far = target.copy()
     far[cap] += [0.0, 0.0, 2.0]
     out, reliable = transfer_skin_weights(garbage, v, f, far, target, f, face, bary)
+    # a target wound the other way (inside out, which the match turns) is read with its faces turned
+    out_r, reliable_r = transfer_skin_weights(garbage, v, f, far, target, f[:, ::-1], face, bary)
+    np.testing.assert_array_equal(reliable_r, reliable)
+    np.testing.assert_allclose(out_r, out, atol=1e-12)
     # the cap is unreliable (too far), and so is its border ring, whose flowed triangles are
     # stretched towards the moved cap (normals turned by more than 30°); nothing else
     ring = np.zeros(n, dtype=bool)

@@ -192,11 +192,14 @@ def orientation(vertices: Float[np.ndarray, "V 3"], faces: Int[np.ndarray, "F 3"
     when inward (an inside-out mesh), 0 when the surface encloses too little volume to tell (a
     sheet): the sign of the signed volume after closing holes, decided when |volume| ≥ ``tol`` ·
     area^{3/2} (a sphere has 0.094, hands and bodies 0.03–0.04). A mesh with some faces wound
-    against the rest takes the side most of its volume comes from.
+    against the rest takes the side most of its volume about its area centroid comes from.
     """
+    areas = face_areas(vertices, faces)
     v, f = close_boundary(vertices, faces)
-    volume = signed_volume(v, f)
-    area = float(face_areas(vertices, faces).sum())
+    # about the area centroid: a sum over faces wound both ways depends on the origin otherwise
+    center = (areas @ np.asarray(vertices, dtype=np.float64)[faces].mean(axis=1)) / max(float(areas.sum()), 1e-300)
+    volume = signed_volume(v - center, f)
+    area = float(areas.sum())
     if not abs(volume) >= tol * area**1.5:
         return 0
     return 1 if volume > 0 else -1

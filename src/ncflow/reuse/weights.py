@@ -46,7 +46,7 @@ from ncflow.errors import InputError
 from ncflow.flow.skinning import skinning_weights
 from ncflow.geometry.barycentric import surface_points
 from ncflow.geometry.laplacian import cotangent_laplacian, lumped_mass
-from ncflow.geometry.mesh import vertex_normals
+from ncflow.geometry.mesh import orientation, vertex_normals
 from ncflow.geometry.rigid import dense_weights
 from ncflow.io.gltf.skins import GltfSkin
 
@@ -169,7 +169,9 @@ def transfer_skin_weights(
         source_faces: (Fs, 3) source triangles.
         deformed_source: (Vs, 3) the source flowed onto the target (``deformed_source.ply``).
         target_vertices: (Vt, 3) the target.
-        target_faces: (Ft, 3) target triangles.
+        target_faces: (Ft, 3) target triangles; when they wind the other way from the source's
+            (:func:`~ncflow.geometry.mesh.orientation`), their normals are taken reversed, as the
+            match reads such a target.
         face: (Vt,) ``map_tgt_to_src`` source face of every target vertex.
         bary: (Vt, 3) its barycentric coordinates.
         max_distance: largest reliable distance between a target vertex and its point on the flowed
@@ -219,6 +221,8 @@ def transfer_skin_weights(
     carried = surface_points(w, sf, face, bary)
     mapped = surface_points(ds, sf, face, bary)
     near = np.linalg.norm(tv - mapped, axis=1) <= max_distance
+    if orientation(ds, sf) * orientation(tv, tf) < 0:  # wound the other way (the match turned it too)
+        tf = tf[:, ::-1]
     n_target = vertex_normals(tv, tf)
     n_source = surface_points(vertex_normals(ds, sf), sf, face, bary)
     norm = np.linalg.norm(n_source, axis=1)
