@@ -80,7 +80,7 @@ def test_distance_bad_file_exit_code(tmp_path, pair, capsys):
     bad.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf 1 2\n")
     assert main(["distance", str(pair[0]), str(bad), "--sigma", "0.2"]) == 2
     err = capsys.readouterr().err.strip()
-    assert str(bad) in err and "fewer than 3 corners" in err and len(err.splitlines()) == 1
+    assert str(bad) in err and "a face of 2 corners" in err and len(err.splitlines()) == 1
 
 
 def test_make_shape_writes_loadable_mesh(tmp_path):

@@ -452,6 +452,9 @@ def test_read_result_names_bad_files(tmp_path, sphere):
         InputError, match=r"map_tgt_to_src\.npz: 'bary' has NaN or infinite values in 1 rows \(first: row 1\)"
     ):
         read_result(out)
+    np.savez(out / "map_tgt_to_src.npz", face=maps["map_face"], bary=bary.astype(str))
+    with pytest.raises(InputError, match=r"map_tgt_to_src\.npz: 'bary' must be a float array"):
+        read_result(out)
     np.savez(out / "map_tgt_to_src.npz", face=maps["map_face"], bary=bary[:, :2])
     with pytest.raises(InputError, match=r"map_tgt_to_src\.npz: 'bary' must have shape \(\d+, 3\), got \(\d+, 2\)"):
         read_result(out)

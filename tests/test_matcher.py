@@ -15,7 +15,7 @@ from ncflow.geometry.overlap import self_overlap
 from ncflow.io.meshes import save_mesh
 from ncflow.io.result import read_result
 from ncflow.match.matcher import Matcher, match
-from ncflow.match.prepare import check_sizes, load_inputs, prepare, size_ratio
+from ncflow.match.prepare import check_precision, check_sizes, load_inputs, prepare, size_ratio
 from ncflow.skeleton import Skeleton, save_skeleton
 from ncflow.synthetic.shapes import bend, capsule
 
@@ -288,6 +288,15 @@ def test_what_the_reader_changed_is_a_warning_of_the_match(pair):
     s = Mesh(src.vertices, src.faces, "s.obj", notes=("3 of 9 faces have [4] corners: split into triangles",))
     problem = prepare(s, tgt, skel, cfg)
     assert problem.warnings == ("s.obj: 3 of 9 faces have [4] corners: split into triangles",)
+
+
+def test_a_mesh_far_from_the_origin_for_its_size_is_warned_of(pair):
+    src = pair[0]
+    assert check_precision(src, "source") == []
+    far = Mesh(src.vertices + [4.0e6, 0.0, 0.0], src.faces)  # a 3.8-unit capsule at survey coordinates
+    (warning,) = check_precision(far, "target")
+    assert warning.startswith("target: the target is 3.") and "lies 4e+06 from the origin" in warning
+    assert "about 1 digits" in warning
 
 
 def test_meshes_given_as_objects_are_validated(pair):

@@ -24,7 +24,7 @@ def write(tmp_path, name, text):
     "name, text, message",
     [
         ("empty.obj", "v 0 0 0\nv 1 0 0\n", "no faces"),
-        ("line.obj", "v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 3\nf 1 2\n", "1 of 2 faces have fewer than 3 corners"),
+        ("line.obj", "v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 3\nf 1 2\n", "line 5: a face of 2 corners"),
         ("line.off", "OFF\n3 2 0\n0 0 0\n1 0 0\n1 1 0\n3 0 1 2\n2 0 1\n", "fewer than 3 corners"),
         ("nan.obj", "v 0 0 nan\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "NaN or infinite"),
         ("inf.off", "OFF\n3 1 0\n0 0 inf\n1 0 0\n0 1 0\n3 0 1 2\n", "NaN or infinite"),
@@ -87,6 +87,14 @@ def test_coordinates_float32_outputs_cannot_hold_are_refused(scale, message):
         validate_mesh(v * scale, f, name="big.ply")
 
 
+def test_float_face_indices_are_one_line_error():
+    from ncflow.geometry.mesh import _check_finite_and_range  # validate_mesh's annotation refuses them first in tests
+
+    v, f = sphere(1)
+    with pytest.raises(InputError, match="^m: face indices must be integers, got float64"):
+        _check_finite_and_range(v, f.astype(float), "m")
+
+
 def test_orientation_outward_inward_and_undecided():
     v, f = sphere(2)
     assert orientation(v, f) == 1 and orientation(v, f[:, ::-1]) == -1
@@ -114,6 +122,25 @@ def test_orientation_outward_inward_and_undecided():
         assert orientation(v + np.array(offset), patched[:, ::-1]) == -1
 
 
+def _canonical(tri):
+    """A triangle's corners rotated to start at the smallest (its winding kept)."""
+    k = tri.index(min(tri))
+    return tuple(tri[k:] + tri[:k])
+
+
+def test_obj_vertices_are_the_files_whatever_else_it_holds(tmp_path):
+    text = (
+        "# materials, groups, normals, texture coordinates, colours, comments, continuations\n"
+        "mtllib nowhere.mtl\no body\nv 0 0 0 1 0 0\nv 1 0 0\n  v 0 1 0\nv 1 1 0\nv 2 0 0\n"
+        "vt 0 0\nvn 0 0 1\ng a\nusemtl skin\nf 1/1/1 2/1/1 3/1/1 # the first\nusemtl cloth\ns 1\n"
+        "f 2//1 4//1 \\\n 3//1\nf -4 -1 -2\nl 1 2\n"
+    )
+    m = load_mesh(write(tmp_path, "rich.obj", text), validate=False)
+    np.testing.assert_array_equal(m.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [2, 0, 0]])
+    assert m.faces.tolist() == [[0, 1, 2], [1, 3, 2], [1, 4, 3]] and m.notes == ()
+    np.testing.assert_array_equal(m.file_index, np.arange(5))
+
+
 QUAD_V = "0 0 0\n1 0 0\n1 1 0\n0 1 0\n0.5 1.5 0\n2 0 0\n"  # a quad, a pentagon on it, a triangle
 
 
@@ -134,7 +161,7 @@ def test_polygons_are_split_into_triangles_and_counted(tmp_path, name, text):
     m = load_mesh(write(tmp_path, name, text), validate=False)  # the faces overlap: only the split is tested
     # quad (0 1 2 3) along the diagonal from its first corner, pentagon (0 1 5 2 4) as a fan from it
     expected = [[0, 1, 2], [2, 3, 0], [3, 2, 4], [1, 5, 2], [0, 1, 5], [0, 5, 2], [0, 2, 4]]
-    assert sorted(map(sorted, m.faces.tolist())) == sorted(map(sorted, expected))
+    assert sorted(map(_canonical, m.faces.tolist())) == sorted(map(_canonical, expected))  # winding kept
     np.testing.assert_allclose(m.vertices, np.array([ln.split() for ln in QUAD_V.splitlines()], float))
     (note,) = m.notes
     assert note.startswith("2 of 4 faces have [4, 5] corners: split into triangles")

@@ -127,6 +127,8 @@ def _check_finite_and_range(vertices: np.ndarray, faces: np.ndarray, name: str |
         )
     if faces.ndim != 2 or faces.shape[1] != 3:
         raise InputError(f"non-triangular faces (shape {faces.shape})", name)
+    if not np.issubdtype(faces.dtype, np.integer):
+        raise InputError(f"face indices must be integers, got {faces.dtype}", name)
     if faces.shape[0] == 0:
         raise InputError("no faces", name)
     if faces.min() < 0 or faces.max() >= vertices.shape[0]:

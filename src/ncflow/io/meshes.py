@@ -3,10 +3,12 @@
 :func:`load_mesh` never reorders vertices. Exactly coincident vertices are merged ("welded") only
 for the formats that store split vertices by construction (STL triangle soups, glTF/GLB seam
 duplicates), or when asked, and the map back to the file's vertices is kept in
-:attr:`~ncflow.geometry.mesh.Mesh.file_index`. Polygons (quads from a modelling package) are split
-into triangles without new vertices, and said so: :attr:`~ncflow.geometry.mesh.Mesh.notes` counts
-them (OBJ, OFF and ASCII PLY, whose face sizes are read before trimesh splits them; a binary PLY by
-its header's face count), and the matcher repeats it as a warning. Every mesh is validated
+:attr:`~ncflow.geometry.mesh.Mesh.file_index`. OBJ files are read by :func:`ncflow.io.obj.read_obj`
+(trimesh would split their vertices by material), the other formats through trimesh. Polygons
+(quads from a modelling package) are split into triangles without new vertices, and said so:
+:attr:`~ncflow.geometry.mesh.Mesh.notes` counts them (OFF and ASCII PLY face sizes are read before
+trimesh splits them; a binary PLY is counted by its header's face count), and the matcher repeats
+it as a warning. Every mesh is validated
 (:func:`~ncflow.geometry.mesh.validate_mesh`). :func:`save_mesh` is the one mesh writer: by suffix,
 in the given vertex order, atomically, at float32 (through trimesh) or float64 precision.
 
@@ -41,6 +43,7 @@ from ncflow.io.gltf.document import (
     malformed,
     node_hierarchy,
 )
+from ncflow.io.obj import read_obj
 
 MESH_SUFFIXES = (".obj", ".ply", ".off", ".stl", ".glb", ".gltf")
 
@@ -55,16 +58,9 @@ _WELD_BY_DEFAULT = (".stl", ".glb", ".gltf")
 
 
 def _declared_polygon_sizes(path: Path) -> np.ndarray | None:
-    """Number of corners of every face as written in an OBJ/OFF/ASCII-PLY file (None if unknown)."""
+    """Number of corners of every face as written in an OFF or ASCII-PLY file (None if unknown)."""
     suffix = path.suffix.lower()
     try:
-        if suffix == ".obj":
-            sizes = []
-            with open(path, errors="replace") as fh:
-                for line in fh:
-                    if line.startswith("f ") or line.startswith("f\t"):
-                        sizes.append(len(line.split()) - 1)
-            return np.asarray(sizes, dtype=np.int64)
         if suffix == ".off":
             with open(path, errors="replace") as fh:
                 tokens = [ln.split("#")[0].split() for ln in fh]
@@ -243,6 +239,26 @@ def _mesh_arrays(loaded, path: Path) -> tuple[np.ndarray, np.ndarray]:
     return vertices, faces
 
 
+def _trimesh_or_error(path: Path, suffix: str, sizes: np.ndarray | None):
+    """:func:`_load_trimesh`, its many kinds of errors turned into one-line InputErrors."""
+    try:
+        return _load_trimesh(path, suffix)
+    except InputError:
+        raise
+    except IndexError:
+        raise InputError("cannot read mesh (corrupt or truncated file)", path) from None
+    except Exception as exc:  # trimesh raises many kinds of errors for broken files
+        msg = first_line(exc)
+        if "outside the range" in msg or "out of bounds" in msg:
+            raise InputError("face index out of range", path) from None
+        if suffix == ".off" and sizes is not None and np.any(sizes > 3) and np.unique(sizes).size > 1:
+            raise InputError(
+                "polygons of several sizes in an OFF file, which trimesh cannot split; triangulate the mesh first",
+                path,
+            ) from None
+        raise InputError(f"cannot read mesh ({msg[:100]})", path) from None
+
+
 def load_mesh(path: str | os.PathLike, *, weld: bool | None = None, validate: bool = True) -> Mesh:
     """Read a triangle mesh from OBJ, PLY, OFF, STL, glTF or GLB (polygons split into triangles,
     counted in :attr:`~ncflow.geometry.mesh.Mesh.notes`).
@@ -261,30 +277,15 @@ def load_mesh(path: str | os.PathLike, *, weld: bool | None = None, validate: bo
     """
     path = Path(path)
     suffix = check_input_file(path, "mesh", MESH_SUFFIXES)
-    sizes = _declared_polygon_sizes(path)
+    if suffix == ".obj":
+        vertices, faces, sizes = read_obj(path)
+    else:
+        sizes = _declared_polygon_sizes(path)
+        if sizes is not None and np.any(sizes < 3):
+            bad = sizes[sizes < 3]
+            raise InputError(f"{bad.size} of {sizes.size} faces have fewer than 3 corners (first: {int(bad[0])})", path)
+        vertices, faces = _mesh_arrays(_trimesh_or_error(path, suffix, sizes), path)
     polygons = 0 if sizes is None else int(np.sum(sizes > 3))
-    if sizes is not None and np.any(sizes < 3):
-        bad = sizes[sizes < 3]
-        raise InputError(f"{bad.size} of {sizes.size} faces have fewer than 3 corners (first: {int(bad[0])})", path)
-    try:
-        loaded = _load_trimesh(path, suffix)
-    except InputError:
-        raise
-    except IndexError:
-        if suffix == ".obj":  # trimesh's OBJ reader indexes the vertex list with the face indices
-            raise InputError("face index out of range", path) from None
-        raise InputError("cannot read mesh (corrupt or truncated file)", path) from None
-    except Exception as exc:  # trimesh raises many kinds of errors for broken files
-        if suffix == ".off" and polygons and np.unique(sizes).size > 1:
-            raise InputError(
-                "polygons of several sizes in an OFF file, which trimesh cannot split; triangulate the mesh first",
-                path,
-            ) from None
-        msg = first_line(exc)
-        if "outside the range" in msg or "out of bounds" in msg:
-            raise InputError("face index out of range", path) from None
-        raise InputError(f"cannot read mesh ({msg[:100]})", path) from None
-    vertices, faces = _mesh_arrays(loaded, path)
     if faces.size == 0:
         raise InputError("no faces (a point cloud or an empty file?)", path)
     if faces.ndim != 2 or faces.shape[1] != 3:

@@ -31,9 +31,7 @@ from ncflow.errors import InputError, first_line
 from ncflow.io.arrays import as_faces, check_finite
 from ncflow.io.atomic import atomic_write_text
 from ncflow.io.files import check_input_file
-
-MAX_OBJ_BYTES = 2**30
-"""Largest OBJ file read (1 GiB)."""
+from ncflow.io.obj import MAX_OBJ_BYTES, check_indices, parse_index, parse_numbers
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -51,46 +49,6 @@ class TexturedMesh:
     faces: Int[np.ndarray, "F 3"]
     uvs: Float[np.ndarray, "T 2"]
     uv_faces: Int[np.ndarray, "F 3"]
-
-
-def _numbers(tokens: list[str], lo: int, hi: int, lineno: int, what: str, path) -> list[float]:
-    """The first ``hi`` numbers of ``tokens`` (at least ``lo``), finite; InputError otherwise."""
-    if len(tokens) < lo:
-        raise InputError(f"line {lineno}: '{what}' needs at least {lo} numbers, got {len(tokens)}", path)
-    try:
-        values = [float(t) for t in tokens[:hi]]
-    except ValueError:
-        raise InputError(f"line {lineno}: '{what}' has a value that is not a number", path) from None
-    if not all(np.isfinite(values)):
-        raise InputError(f"line {lineno}: '{what}' has a NaN or infinite value", path)
-    return values
-
-
-def _index(token: str, count: int, lineno: int, what: str, path) -> int:
-    """A 1-based OBJ index as 0-based; a negative one counts back from the ``count`` items read so far.
-
-    The upper bound of positive indices is checked once the whole file is read.
-    """
-    try:
-        i = int(token)
-    except ValueError:
-        raise InputError(f"line {lineno}: {what} index {token[:40]!r} is not an integer", path) from None
-    k = i - 1 if i > 0 else count + i
-    if i == 0 or not 0 <= k < 2**40:
-        raise InputError(f"line {lineno}: {what} index {token[:40]} is out of range", path)
-    return k
-
-
-def _check_upper(index: np.ndarray, count: int, lines: list[int], what: str, path) -> None:
-    """InputError naming the first face line whose ``what`` index is at least ``count``."""
-    bad = np.any(index >= count, axis=1)
-    if np.any(bad):
-        k = int(np.argmax(bad))
-        raise InputError(
-            f"line {lines[k]}: {what} index {int(index[k].max()) + 1} is out of range (the file has {count} "
-            f"{what}s; {int(bad.sum())} faces affected)",
-            path,
-        )
 
 
 def read_obj_uv(path: str | os.PathLike) -> TexturedMesh:
@@ -122,9 +80,9 @@ def read_obj_uv(path: str | os.PathLike) -> TexturedMesh:
                     continue
                 key = tokens[0]
                 if key == "v":
-                    vertices.append(_numbers(tokens[1:], 3, 3, lineno, "v", path))
+                    vertices.append(parse_numbers(tokens[1:], 3, 3, lineno, "v", path))
                 elif key == "vt":
-                    uv = _numbers(tokens[1:], 1, 2, lineno, "vt", path)
+                    uv = parse_numbers(tokens[1:], 1, 2, lineno, "vt", path)
                     uvs.append(uv if len(uv) == 2 else [uv[0], 0.0])
                 elif key == "f":
                     corners = tokens[1:]
@@ -141,8 +99,8 @@ def read_obj_uv(path: str | os.PathLike) -> TexturedMesh:
                                 "(every corner needs v/vt)",
                                 path,
                             )
-                        fv.append(_index(parts[0], len(vertices), lineno, "vertex", path))
-                        ft.append(_index(parts[1], len(uvs), lineno, "texture coordinate", path))
+                        fv.append(parse_index(parts[0], len(vertices), lineno, "vertex", path))
+                        ft.append(parse_index(parts[1], len(uvs), lineno, "texture coordinate", path))
                     faces.append(fv)
                     uv_faces.append(ft)
                     face_lines.append(lineno)
@@ -153,8 +111,8 @@ def read_obj_uv(path: str | os.PathLike) -> TexturedMesh:
     if not faces:
         raise InputError("no faces", path)
     f, ft = np.asarray(faces, dtype=np.int64), np.asarray(uv_faces, dtype=np.int64)
-    _check_upper(f, len(vertices), face_lines, "vertex", path)
-    _check_upper(ft, len(uvs), face_lines, "texture coordinate", path)
+    check_indices(f, len(vertices), face_lines, "vertex", path)
+    check_indices(ft, len(uvs), face_lines, "texture coordinate", path)
     return TexturedMesh(
         vertices=np.asarray(vertices, dtype=np.float64).reshape(-1, 3),
         faces=f,

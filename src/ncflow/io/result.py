@@ -446,6 +446,8 @@ def read_result(out_dir: str | os.PathLike, *, check_animation: bool = True) -> 
         got = f"shape {short_repr(face.shape, 40)} dtype {dtype_text(face.dtype)}"
         raise InputError(f"'face' must be a 1-D integer array, got {got}", npz_path)
     nt = face.shape[0]
+    if not np.issubdtype(bary.dtype, np.floating):
+        raise InputError(f"'bary' must be a float array, got dtype {dtype_text(bary.dtype)}", npz_path)
     if bary.shape != (nt, 3):
         raise InputError(f"'bary' must have shape ({nt}, 3), got {short_repr(bary.shape, 40)}", npz_path)
     bad = ~np.all(np.isfinite(bary), axis=1)

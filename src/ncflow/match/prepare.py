@@ -60,8 +60,9 @@ class Problem:
         bone_radii: (B,) bone-sample radius factor per bone.
         centroids: (K, 3) soft-tissue tet centroids of the normalised source ((0, 3) when disabled).
         tissue_info: how the centroids were obtained (cache hit, counts, seconds).
-        warnings: polygons the reader split into triangles; a target of somewhat another size than
-            the source, or wound the other way; joints slightly outside the source surface.
+        warnings: polygons the reader split into triangles; a mesh far from the origin for its size;
+            a target of somewhat another size than the source, or wound the other way; joints
+            slightly outside the source surface.
         tissue_seconds: wall time of obtaining the centroids.
         placement_seconds: wall time of the placement (its pose searches excluded).
         pose_search: the skeleton pose found for the chosen placement (None when the search is off).
@@ -341,6 +342,26 @@ def check_sizes(src: Mesh, tgt: Mesh) -> list[str]:
     return []
 
 
+PRECISION_WARNING = 1e-4
+"""A mesh narrower than this fraction of its largest coordinate gets a warning (:func:`check_precision`)."""
+
+
+def check_precision(mesh: Mesh, role: str) -> list[str]:
+    """A warning when the mesh is small next to its distance from the origin (a scan in survey
+    coordinates): the outputs are written in the input's coordinates at float32, seven digits, so
+    below :data:`PRECISION_WARNING` they keep fewer than three digits of the mesh's own size.
+    """
+    size = float(np.linalg.norm(np.ptp(mesh.vertices, axis=0)))
+    far = float(np.abs(mesh.vertices).max())
+    if size < PRECISION_WARNING * far:
+        return [
+            f"{mesh.name or role}: the {role} is {size:.3g} across but lies {far:.3g} from the origin; the outputs, "
+            "written in its coordinates at float32, keep only about "
+            f"{max(0.0, 7 + np.log10(size / far)):.0f} digits of its shape: move it near the origin"
+        ]
+    return []
+
+
 def target_faces_like_source(src: Mesh, tgt: Mesh) -> tuple[np.ndarray, list[str]]:
     """The target's faces wound as the source's, and a warning when they had to be turned.
 
@@ -389,7 +410,8 @@ def prepare(source, target, skeleton, config, message=lambda text: None, before_
     """
     src, tgt, skel = load_inputs(source, target, skeleton)
     tgt_f, turned = target_faces_like_source(src, tgt)
-    notes = [f"{mesh.name}: {note}" for mesh in (src, tgt) for note in mesh.notes]
+    notes = [f"{m.name or role}: {n}" for m, role in ((src, "source"), (tgt, "target")) for n in m.notes]
+    notes += [w for m, role in ((src, "source"), (tgt, "target")) for w in check_precision(m, role)]
     warnings = notes + check_sizes(src, tgt) + turned + check_skeleton_placement(skel, src)
     for w in warnings:
         message(f"warning: {w}")
