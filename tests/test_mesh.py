@@ -271,6 +271,25 @@ def test_enclosed_volume_closed_and_open():
     assert not mesh_topology(cf).has_boundary and trimesh.Trimesh(cv, cf, process=False).is_winding_consistent
 
 
+def test_close_boundary_caps_every_loop_at_its_centroid():
+    # a tube (two loops) beside a triangle soup of a sphere (one loop per face)
+    tv, tf = tube(radius=0.5, length=2.0, n_around=7, n_along=4)
+    sv, sf = sphere(1)
+    soup_v = sv[sf].reshape(-1, 3) + 5.0
+    v = np.concatenate([tv, soup_v])
+    f = np.concatenate([tf, np.arange(soup_v.shape[0]).reshape(-1, 3) + tv.shape[0]])
+    cv, cf = close_boundary(v, f)
+    n_loops = 2 + sf.shape[0]
+    assert cv.shape[0] == v.shape[0] + n_loops and not mesh_topology(cf).has_boundary
+    np.testing.assert_array_equal(cv[: v.shape[0]], v)
+    # brute force: each appended vertex is the mean of the loop vertices its cap triangles touch
+    caps = cf[f.shape[0] :]
+    for k in range(v.shape[0], cv.shape[0]):
+        ring = np.unique(caps[caps[:, 2] == k][:, :2])
+        np.testing.assert_allclose(cv[k], v[ring].mean(0), rtol=1e-12, atol=1e-12)
+    assert {len(np.unique(caps[caps[:, 2] == k][:, :2])) for k in range(v.shape[0], cv.shape[0])} == {3, 7}
+
+
 def test_normalization_is_reversible_and_hits_unit_ball_volume():
     v, f = capsule()
     v = v * 3.7 + np.array([1.0, -2.0, 5.0])

@@ -159,11 +159,12 @@ def close_boundary(
     graph = coo_matrix((np.ones(a.size), (a, b)), shape=(nv, nv))
     _, label = connected_components(graph, directed=False)
     loops, loop_of_edge = np.unique(label[a], return_inverse=True)
+    loop_of_edge = loop_of_edge.reshape(-1)
+    # each loop's distinct vertices, all loops at once (a triangle soup has one loop per face)
+    member = np.unique(np.stack([np.tile(loop_of_edge, 2), np.concatenate([a, b])], axis=1), axis=0)
+    count = np.bincount(member[:, 0], minlength=loops.size)[:, None]
     centroids = np.stack(
-        [
-            vertices[np.unique(np.concatenate([a[loop_of_edge == k], b[loop_of_edge == k]]))].mean(0)
-            for k in range(loops.size)
-        ]
-    )
-    cap = np.stack([start, end, nv + loop_of_edge.reshape(-1)], axis=1)
+        [np.bincount(member[:, 0], weights=vertices[member[:, 1], d], minlength=loops.size) for d in range(3)], axis=1
+    ) / np.maximum(count, 1)
+    cap = np.stack([start, end, nv + loop_of_edge], axis=1)
     return np.concatenate([vertices, centroids]), np.concatenate([faces, cap])
