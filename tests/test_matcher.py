@@ -15,7 +15,7 @@ from ncflow.geometry.overlap import self_overlap
 from ncflow.io.meshes import save_mesh
 from ncflow.io.result import read_result
 from ncflow.match.matcher import Matcher, match
-from ncflow.match.prepare import check_precision, check_sizes, load_inputs, prepare, size_ratio
+from ncflow.match.prepare import check_precision, check_seams, check_sizes, load_inputs, prepare, size_ratio
 from ncflow.skeleton import Skeleton, save_skeleton
 from ncflow.synthetic.shapes import bend, capsule
 
@@ -297,6 +297,15 @@ def test_a_mesh_far_from_the_origin_for_its_size_is_warned_of(pair):
     (warning,) = check_precision(far, "target")
     assert warning.startswith("target: the target is 3.") and "lies 4e+06 from the origin" in warning
     assert "about 1 digits" in warning
+
+
+def test_a_mesh_split_at_seams_is_warned_of(pair):
+    src = pair[0]
+    assert check_seams(src, "source") == []
+    soup = Mesh(src.vertices[src.faces].reshape(-1, 3), np.arange(3 * src.n_faces).reshape(-1, 3), "soup.ply")
+    (warning,) = check_seams(soup, "source")
+    n = 3 * src.n_faces
+    assert warning.startswith(f"soup.ply: {n - src.n_vertices} of the source's {n} vertices lie exactly where")
 
 
 def test_meshes_given_as_objects_are_validated(pair):

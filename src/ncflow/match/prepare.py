@@ -60,7 +60,8 @@ class Problem:
         bone_radii: (B,) bone-sample radius factor per bone.
         centroids: (K, 3) soft-tissue tet centroids of the normalised source ((0, 3) when disabled).
         tissue_info: how the centroids were obtained (cache hit, counts, seconds).
-        warnings: polygons the reader split into triangles; a mesh far from the origin for its size;
+        warnings: polygons the reader split into triangles; a mesh far from the origin for its size
+            or split at seams;
             a target of somewhat another size than the source, or wound the other way; joints
             slightly outside the source surface.
         tissue_seconds: wall time of obtaining the centroids.
@@ -362,6 +363,26 @@ def check_precision(mesh: Mesh, role: str) -> list[str]:
     return []
 
 
+SEAM_WARNING = 0.01
+"""A mesh with more than this fraction of its vertices at the place of another gets a warning
+(:func:`check_seams`)."""
+
+
+def check_seams(mesh: Mesh, role: str) -> list[str]:
+    """A warning when many vertices lie exactly where another does: a mesh split at its texture or
+    normal seams, or a triangle soup (a PLY exported per face). The surface then has cracks there,
+    which the Normal Cycles see as boundary, and the tissue and the skinning treat the pieces apart.
+    """
+    n = mesh.n_vertices
+    coincident = n - np.unique(mesh.vertices, axis=0).shape[0]
+    if coincident > SEAM_WARNING * n:
+        return [
+            f"{mesh.name or role}: {coincident} of the {role}'s {n} vertices lie exactly where another does (a mesh "
+            "split at seams, or a triangle soup): the match sees cracks there; weld them first"
+        ]
+    return []
+
+
 def target_faces_like_source(src: Mesh, tgt: Mesh) -> tuple[np.ndarray, list[str]]:
     """The target's faces wound as the source's, and a warning when they had to be turned.
 
@@ -410,8 +431,9 @@ def prepare(source, target, skeleton, config, message=lambda text: None, before_
     """
     src, tgt, skel = load_inputs(source, target, skeleton)
     tgt_f, turned = target_faces_like_source(src, tgt)
-    notes = [f"{m.name or role}: {n}" for m, role in ((src, "source"), (tgt, "target")) for n in m.notes]
-    notes += [w for m, role in ((src, "source"), (tgt, "target")) for w in check_precision(m, role)]
+    meshes = ((src, "source"), (tgt, "target"))
+    notes = [f"{m.name or role}: {n}" for m, role in meshes for n in m.notes]
+    notes += [w for m, role in meshes for w in check_precision(m, role) + check_seams(m, role)]
     warnings = notes + check_sizes(src, tgt) + turned + check_skeleton_placement(skel, src)
     for w in warnings:
         message(f"warning: {w}")
