@@ -14,8 +14,9 @@ from ncflow.geometry.mesh import Mesh
 from ncflow.geometry.overlap import self_overlap
 from ncflow.io.meshes import save_mesh
 from ncflow.io.result import read_result
+from ncflow.match.inputs import check_precision, check_seams, check_sizes, load_inputs, size_ratio
 from ncflow.match.matcher import Matcher, match
-from ncflow.match.prepare import check_precision, check_seams, check_sizes, load_inputs, prepare, size_ratio
+from ncflow.match.prepare import prepare
 from ncflow.skeleton import Skeleton, save_skeleton
 from ncflow.synthetic.shapes import bend, capsule
 

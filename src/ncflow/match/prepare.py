@@ -22,18 +22,17 @@ import numpy as np
 from jaxtyping import Float
 
 from ncflow.cache import cache_root
-from ncflow.errors import InputError
 from ncflow.geometry.decimate import Decimation, decimate
-from ncflow.geometry.mesh import Mesh, face_areas, orientation, validate_mesh
+from ncflow.geometry.mesh import Mesh
 from ncflow.geometry.normalize import Normalization, fit_normalization
 from ncflow.geometry.overlap import self_overlap
 from ncflow.geometry.topology import Topology, mesh_topology
 from ncflow.io.atomic import computed_once
 from ncflow.io.files import read_npz_arrays
-from ncflow.io.meshes import load_mesh
+from ncflow.match.inputs import check_inputs, load_inputs
 from ncflow.match.placement import Placement, place_target, placement_candidates
 from ncflow.match.pose_search import PoseSearchResult, search_poses
-from ncflow.skeleton import Skeleton, check_inside, load_skeleton
+from ncflow.skeleton import Skeleton
 from ncflow.skeleton.kinematics import Pose
 from ncflow.tissue import centroids_digest, load_tissue_file, tissue_centroids
 
@@ -56,14 +55,13 @@ class Problem:
         skeleton_normalized: the skeleton in normalised coordinates.
         source_topology: edge table of the working source.
         target_topology: edge table of the target, its faces wound as the source's
-            (:func:`target_faces_like_source`).
+            (:func:`~ncflow.match.inputs.target_faces_like_source`).
         bone_radii: (B,) bone-sample radius factor per bone.
         centroids: (K, 3) soft-tissue tet centroids of the normalised source ((0, 3) when disabled).
         tissue_info: how the centroids were obtained (cache hit, counts, seconds).
-        warnings: polygons the reader split into triangles; a mesh far from the origin for its size
-            or split at seams;
-            a target of somewhat another size than the source, or wound the other way; joints
-            slightly outside the source surface.
+        warnings: what :func:`~ncflow.match.inputs.check_inputs` found (polygons split, a mesh far
+            from the origin or split at seams, a target of somewhat another size or wound the other
+            way, joints slightly outside the source surface).
         tissue_seconds: wall time of obtaining the centroids.
         placement_seconds: wall time of the placement (its pose searches excluded).
         pose_search: the skeleton pose found for the chosen placement (None when the search is off).
@@ -288,133 +286,6 @@ def place_and_pose_cached(src_v, src_f, tgt_v, tgt_f, skeleton: Skeleton, config
     return value, {"hit": hit, "file": None if entry is None else str(entry)}
 
 
-def _mesh(mesh) -> Mesh:
-    if isinstance(mesh, Mesh):
-        validate_mesh(mesh.vertices, mesh.faces, name=mesh.name)  # what load_mesh checks of a file
-        return mesh
-    return load_mesh(mesh)
-
-
-def load_inputs(source, target, skeleton) -> tuple[Mesh, Mesh, Skeleton]:
-    """Meshes and skeleton from objects or file paths, validated (meshes given as objects too:
-    :func:`~ncflow.geometry.mesh.validate_mesh`).
-    """
-    skel = skeleton if isinstance(skeleton, Skeleton) else load_skeleton(skeleton)
-    return _mesh(source), _mesh(target), skel
-
-
-SIZE_RATIO_LIMIT = 2.0
-"""The most the target's size may differ from the source's, either way (:func:`check_sizes`)."""
-
-SIZE_RATIO_WARNING = 1.25
-"""Beyond this size ratio, either way, a run goes on with a warning (:func:`check_sizes`)."""
-
-
-def size_ratio(src: Mesh, tgt: Mesh) -> float:
-    """The target's size relative to the source's: √(target area / source area), in the files' units.
-    Articulation keeps a surface's area (skin stretches by some percent), and so do triangulation
-    and resolution, so one character in two poses has a ratio near 1.
-    """
-    return float(np.sqrt(face_areas(tgt.vertices, tgt.faces).sum() / face_areas(src.vertices, src.faces).sum()))
-
-
-def check_sizes(src: Mesh, tgt: Mesh) -> list[str]:
-    """A warning when the target's :func:`size_ratio` to the source is beyond
-    :data:`SIZE_RATIO_WARNING` either way; an :class:`InputError` naming the target beyond
-    :data:`SIZE_RATIO_LIMIT`. ncflow normalises both meshes by one similarity (DESIGN.md
-    "Normalisation") and matches one character at one scale: a target in other units (millimetres
-    against metres, inches against centimetres) would otherwise give a meaningless result without
-    a word.
-    """
-    ratio = size_ratio(src, tgt)
-    if not np.isfinite(ratio) or max(ratio, 1.0 / ratio) > SIZE_RATIO_LIMIT:
-        raise InputError(
-            f"the target is {ratio:.3g}x the size of the source {src.name or ''} (the square root of their "
-            f"surface areas' ratio; at most {SIZE_RATIO_LIMIT:g}x either way): ncflow matches one character "
-            "in two poses at one scale; are the files in different units (millimetres and metres: 1000x)? "
-            "Scale one of them",
-            tgt.name,
-        )
-    if max(ratio, 1.0 / ratio) > SIZE_RATIO_WARNING:
-        return [
-            f"the target is {ratio:.3g}x the size of the source (the square root of their surface areas' "
-            "ratio): ncflow matches one character at one scale"
-        ]
-    return []
-
-
-PRECISION_WARNING = 1e-4
-"""A mesh narrower than this fraction of its largest coordinate gets a warning (:func:`check_precision`)."""
-
-
-def check_precision(mesh: Mesh, role: str) -> list[str]:
-    """A warning when the mesh is small next to its distance from the origin (a scan in survey
-    coordinates): the outputs are written in the input's coordinates at float32, seven digits, so
-    below :data:`PRECISION_WARNING` they keep fewer than three digits of the mesh's own size.
-    """
-    size = float(np.linalg.norm(np.ptp(mesh.vertices, axis=0)))
-    far = float(np.abs(mesh.vertices).max())
-    if size < PRECISION_WARNING * far:
-        return [
-            f"{mesh.name or role}: the {role} is {size:.3g} across but lies {far:.3g} from the origin; the outputs, "
-            "written in its coordinates at float32, keep only about "
-            f"{max(0.0, 7 + np.log10(size / far)):.0f} digits of its shape: move it near the origin"
-        ]
-    return []
-
-
-SEAM_WARNING = 0.01
-"""A mesh with more than this fraction of its vertices at the place of another gets a warning
-(:func:`check_seams`)."""
-
-
-def check_seams(mesh: Mesh, role: str) -> list[str]:
-    """A warning when many vertices lie exactly where another does: a mesh split at its texture or
-    normal seams, or a triangle soup (a PLY exported per face). The surface then has cracks there,
-    which the Normal Cycles see as boundary, and the tissue and the skinning treat the pieces apart.
-    """
-    n = mesh.n_vertices
-    coincident = n - np.unique(mesh.vertices, axis=0).shape[0]
-    if coincident > SEAM_WARNING * n:
-        return [
-            f"{mesh.name or role}: {coincident} of the {role}'s {n} vertices lie exactly where another does (a mesh "
-            "split at seams, or a triangle soup): the match sees cracks there; weld them first"
-        ]
-    return []
-
-
-def target_faces_like_source(src: Mesh, tgt: Mesh) -> tuple[np.ndarray, list[str]]:
-    """The target's faces wound as the source's, and a warning when they had to be turned.
-
-    The data terms are oriented (DESIGN.md "Varifold", "Normal Cycles"): a target wound the other
-    way from the source (one of the two inside out, as some exporters write) reads as a surface
-    facing away, and the match fails without a word (on the shared MANO pair with the target's
-    faces reversed, a 3-step run's geodesic AUC fell from 0.90 to 0.27). Turned only when both
-    orientations are clear (:func:`~ncflow.geometry.mesh.orientation`); the target written with a
-    result is the one given.
-    """
-    if orientation(src.vertices, src.faces) * orientation(tgt.vertices, tgt.faces) < 0:
-        warning = (
-            "the target's faces wind the other way from the source's (one of the two is inside out): "
-            "the target's were turned to agree for the match"
-        )
-        return np.ascontiguousarray(tgt.faces[:, ::-1]), [warning]
-    return tgt.faces, []
-
-
-def check_skeleton_placement(skel: Skeleton, src: Mesh) -> list[str]:
-    """Warnings for joints slightly outside; an :class:`InputError` for joints far outside the source."""
-    far = check_inside(skel, src.vertices, src.faces, surface_tol=0.15, far=0.15)
-    if far:
-        raise InputError(
-            f"skeleton does not fit the source mesh {src.name or ''}: {far[0]}"
-            + (f" (and {len(far) - 1} more)" if len(far) > 1 else "")
-            + "; is it in the same coordinates as the source?",
-            skel.name,
-        )
-    return check_inside(skel, src.vertices, src.faces)
-
-
 def prepare(source, target, skeleton, config, message=lambda text: None, before_search=None) -> Problem:
     """Load, check and normalise the inputs; tissue centroids when the tissue term is on; then place
     the target and search the skeleton's pose.
@@ -430,11 +301,7 @@ def prepare(source, target, skeleton, config, message=lambda text: None, before_
             compiled programs depend on is known then (:mod:`ncflow.match.ahead`).
     """
     src, tgt, skel = load_inputs(source, target, skeleton)
-    tgt_f, turned = target_faces_like_source(src, tgt)
-    meshes = ((src, "source"), (tgt, "target"))
-    notes = [f"{m.name or role}: {n}" for m, role in meshes for n in m.notes]
-    notes += [w for m, role in meshes for w in check_precision(m, role) + check_seams(m, role)]
-    warnings = notes + check_sizes(src, tgt) + turned + check_skeleton_placement(skel, src)
+    tgt_f, warnings = check_inputs(src, tgt, skel)
     for w in warnings:
         message(f"warning: {w}")
     norm, src_v, work = working_source(src, config, message)
