@@ -182,6 +182,22 @@ def test_binary_ply_polygons_split_and_counted(tmp_path):
     assert m.notes[0].startswith("its 2 faces became 4 triangles: polygons split")
 
 
+def test_textured_obj_polygons_split_as_the_matched_mesh(tmp_path):
+    from ncflow.io.obj_uv import read_obj_uv
+
+    text = (
+        "".join(f"v {ln}\n" for ln in QUAD_V.splitlines())
+        + "".join(f"vt {0.1 * k} {0.2 * k}\n" for k in range(8))
+        + "f 1/1 2/2 3/3 4/4\nf 4/5 3/3 5/6\nf 2/2 6/7 3/8 # a seam: vertex 3 with another UV\n"
+    )
+    path = write(tmp_path, "tex.obj", text)
+    textured, plain = read_obj_uv(path), load_mesh(path, validate=False)
+    np.testing.assert_array_equal(textured.faces, plain.faces)
+    np.testing.assert_array_equal(textured.vertices, plain.vertices)
+    assert textured.faces.tolist() == [[0, 1, 2], [0, 2, 3], [3, 2, 4], [1, 5, 2]]
+    assert textured.uv_faces.tolist() == [[0, 1, 2], [0, 2, 3], [4, 2, 5], [1, 6, 7]]
+
+
 def test_off_polygons_split_when_all_one_size(tmp_path):
     m = load_mesh(write(tmp_path, "quads.off", "OFF\n6 2 0\n" + QUAD_V + "4 0 1 2 3\n4 1 5 4 2\n"), validate=False)
     assert sorted(m.faces.tolist()) == [[0, 1, 2], [1, 5, 4], [2, 3, 0], [4, 2, 1]]

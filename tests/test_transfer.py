@@ -438,8 +438,8 @@ def _hostile_files(tmp: Path, nv: int) -> dict[str, tuple[Path, list[str], str]]
     files["obj_missing_vt"] = (tmp / "vt.obj", [], "line 5: texture coordinate index 2 is out of range")
     (tmp / "novt.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2 3/1\n")
     files["obj_no_vt"] = (tmp / "novt.obj", [], "has no texture coordinate")
-    (tmp / "quad.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvt 0 0\nf 1/1 2/1 4/1 3/1\n")
-    files["obj_quad"] = (tmp / "quad.obj", [], "a face with 4 corners")
+    (tmp / "line.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvt 0 0\nf 1/1 2/1\n")
+    files["obj_line"] = (tmp / "line.obj", [], "line 6: a face of 2 corners")
     (tmp / "count.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2/1 3/1\n")
     files["obj_count"] = (tmp / "count.obj", [], "are not the result's source")
     (tmp / "bad.json").write_text('{"landmarks": [{"name": "a", "vertex": 1}')
@@ -477,7 +477,7 @@ HOSTILE = [
     "float_labels",
     "obj_missing_vt",
     "obj_no_vt",
-    "obj_quad",
+    "obj_line",
     "obj_count",
     "json_syntax",
     "json_range",

@@ -70,7 +70,7 @@ def check_indices(index: np.ndarray, count: int, lines: list[int], what: str, pa
         )
 
 
-def _lines(path: Path):
+def obj_lines(path: Path):
     """(line number, tokens) of every line with content: comments cut, continuations joined."""
     size = os.stat(path).st_size
     if size > MAX_OBJ_BYTES:
@@ -114,7 +114,7 @@ def read_obj(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarra
     faces: list[list[int]] = []
     corners: list[int] = []
     face_lines: list[int] = []
-    for lineno, tokens in _lines(path):
+    for lineno, tokens in obj_lines(path):
         key = tokens[0]
         if key == "v":
             vertices.append(parse_numbers(tokens[1:], 3, 3, lineno, "v", path))

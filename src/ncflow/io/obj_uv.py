@@ -1,7 +1,8 @@
 """Wavefront OBJ with face-varying texture coordinates (UVs): read and write, seams kept.
 
-A textured OBJ lists positions (``v x y z``), texture coordinates (``vt u v``) and triangles
-whose corners name both (``f v/vt v/vt v/vt``, or ``v/vt/vn``). One vertex may carry different
+A textured OBJ lists positions (``v x y z``), texture coordinates (``vt u v``) and faces
+whose corners name both (``f v/vt v/vt v/vt``, or ``v/vt/vn``; polygons are split into triangles
+as :mod:`ncflow.io.obj` splits them, each corner keeping its UV). One vertex may carry different
 UVs in different faces: that is a UV seam, and it must survive. :class:`TexturedMesh` therefore
 keeps the UVs per face corner (``uv_faces`` (F, 3) into ``uvs`` (T, 2)) and the vertices and
 faces exactly in the file's order.
@@ -12,8 +13,8 @@ and the transfer needs the file's vertices and the corners' UVs as written. Ever
 textured OBJ may hold (normals, groups, materials, smoothing groups, lines, points) is skipped;
 no material library or texture is opened.
 
-Hostile files: the file size is limited (:data:`MAX_OBJ_BYTES`), faces must be triangles, every
-corner must name a texture coordinate, indices (1-based, or negative = relative to the end, as
+Hostile files: the file size is limited (:data:`~ncflow.io.obj.MAX_OBJ_BYTES`), faces need at
+least 3 corners, every corner must name a texture coordinate, indices (1-based, or negative = relative to the end, as
 the format allows) must lie in range, and coordinates must be finite numbers. Each problem is one
 :class:`~ncflow.errors.InputError` line naming the file and the line.
 """
@@ -27,11 +28,11 @@ from pathlib import Path
 import numpy as np
 from jaxtyping import Float, Int
 
-from ncflow.errors import InputError, first_line
+from ncflow.errors import InputError
 from ncflow.io.arrays import as_faces, check_finite
 from ncflow.io.atomic import atomic_write_text
 from ncflow.io.files import check_input_file
-from ncflow.io.obj import MAX_OBJ_BYTES, check_indices, parse_index, parse_numbers
+from ncflow.io.obj import check_indices, obj_lines, parse_index, parse_numbers
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -52,62 +53,51 @@ class TexturedMesh:
 
 
 def read_obj_uv(path: str | os.PathLike) -> TexturedMesh:
-    """Read a triangle OBJ whose every face corner names a texture coordinate (``f v/vt ...``).
+    """Read an OBJ whose every face corner names a texture coordinate (``f v/vt ...``); polygons are
+    split as :func:`~ncflow.io.obj.read_obj` splits them (fans from their first corner, in the file's
+    order), so the faces are those of the mesh the match read.
 
     Returns:
         The :class:`TexturedMesh`: vertices and faces in the file's order, the corners' UVs.
 
     Raises:
-        InputError: one line naming the file (and the line): too large, not text, a polygon
-            that is not a triangle, a corner without a texture coordinate, an index out of range,
-            a non-number, NaN, no faces.
+        InputError: one line naming the file (and the line): too large, unreadable, a face of fewer
+            than 3 corners, a corner without a texture coordinate, an index out of range, a
+            non-number, NaN, no faces.
     """
     path = Path(path)
     check_input_file(path, "textured mesh", (".obj",))
-    size = os.stat(path).st_size
-    if size > MAX_OBJ_BYTES:
-        raise InputError(f"is {size} bytes, more than the limit of {MAX_OBJ_BYTES}", path)
     vertices: list[list[float]] = []
     uvs: list[list[float]] = []
     faces: list[list[int]] = []
     uv_faces: list[list[int]] = []
     face_lines: list[int] = []
-    try:
-        with open(path, encoding="utf-8", errors="strict") as fh:
-            for lineno, line in enumerate(fh, start=1):
-                tokens = line.split()
-                if not tokens or tokens[0].startswith("#"):
-                    continue
-                key = tokens[0]
-                if key == "v":
-                    vertices.append(parse_numbers(tokens[1:], 3, 3, lineno, "v", path))
-                elif key == "vt":
-                    uv = parse_numbers(tokens[1:], 1, 2, lineno, "vt", path)
-                    uvs.append(uv if len(uv) == 2 else [uv[0], 0.0])
-                elif key == "f":
-                    corners = tokens[1:]
-                    if len(corners) != 3:
-                        raise InputError(
-                            f"line {lineno}: a face with {len(corners)} corners; triangulate the mesh first", path
-                        )
-                    fv, ft = [], []
-                    for corner in corners:
-                        parts = corner.split("/")
-                        if len(parts) < 2 or not parts[1]:
-                            raise InputError(
-                                f"line {lineno}: face corner {corner[:40]!r} has no texture coordinate "
-                                "(every corner needs v/vt)",
-                                path,
-                            )
-                        fv.append(parse_index(parts[0], len(vertices), lineno, "vertex", path))
-                        ft.append(parse_index(parts[1], len(uvs), lineno, "texture coordinate", path))
-                    faces.append(fv)
-                    uv_faces.append(ft)
-                    face_lines.append(lineno)
-    except UnicodeDecodeError as exc:
-        raise InputError(f"cannot read text ({first_line(exc)[:80]})", path) from None
-    except OSError as exc:
-        raise InputError(f"cannot read file ({exc.strerror or first_line(exc)})", path) from None
+    for lineno, tokens in obj_lines(path):  # the lines :func:`~ncflow.io.obj.read_obj` reads, read alike
+        key = tokens[0]
+        if key == "v":
+            vertices.append(parse_numbers(tokens[1:], 3, 3, lineno, "v", path))
+        elif key == "vt":
+            uv = parse_numbers(tokens[1:], 1, 2, lineno, "vt", path)
+            uvs.append(uv if len(uv) == 2 else [uv[0], 0.0])
+        elif key == "f":
+            corners = tokens[1:]
+            if len(corners) < 3:
+                raise InputError(f"line {lineno}: a face of {len(corners)} corners (at least 3 needed)", path)
+            fv, ft = [], []
+            for corner in corners:
+                parts = corner.split("/")
+                if len(parts) < 2 or not parts[1]:
+                    raise InputError(
+                        f"line {lineno}: face corner {corner[:40]!r} has no texture coordinate "
+                        "(every corner needs v/vt)",
+                        path,
+                    )
+                fv.append(parse_index(parts[0], len(vertices), lineno, "vertex", path))
+                ft.append(parse_index(parts[1], len(uvs), lineno, "texture coordinate", path))
+            for k in range(1, len(fv) - 1):  # a polygon as read_obj splits it: a fan from its first corner
+                faces.append([fv[0], fv[k], fv[k + 1]])
+                uv_faces.append([ft[0], ft[k], ft[k + 1]])
+                face_lines.append(lineno)
     if not faces:
         raise InputError("no faces", path)
     f, ft = np.asarray(faces, dtype=np.int64), np.asarray(uv_faces, dtype=np.int64)
