@@ -18,7 +18,8 @@ import numpy as np
 from ncflow.errors import InputError
 from ncflow.geometry.mesh import Mesh, face_areas, orientation, validate_mesh
 from ncflow.io.meshes import load_mesh
-from ncflow.skeleton import Skeleton, check_inside, load_skeleton
+from ncflow.skeleton import Skeleton, load_skeleton
+from ncflow.skeleton.checks import DEFAULT_TOLERANCES, check_inside_at
 
 
 def _mesh(mesh) -> Mesh:
@@ -137,7 +138,7 @@ def target_faces_like_source(src: Mesh, tgt: Mesh) -> tuple[np.ndarray, list[str
 
 def check_skeleton_placement(skel: Skeleton, src: Mesh) -> list[str]:
     """Warnings for joints slightly outside; an :class:`InputError` for joints far outside the source."""
-    far = check_inside(skel, src.vertices, src.faces, surface_tol=0.15, far=0.15)
+    far, near = check_inside_at(skel, src.vertices, src.faces, [(0.15, 0.15), DEFAULT_TOLERANCES])
     if far:
         raise InputError(
             f"skeleton does not fit the source mesh {src.name or ''}: {far[0]}"
@@ -145,7 +146,7 @@ def check_skeleton_placement(skel: Skeleton, src: Mesh) -> list[str]:
             + "; is it in the same coordinates as the source?",
             skel.name,
         )
-    return check_inside(skel, src.vertices, src.faces)
+    return near
 
 
 def check_inputs(src: Mesh, tgt: Mesh, skel: Skeleton) -> tuple[np.ndarray, list[str]]:

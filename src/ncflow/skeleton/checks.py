@@ -27,13 +27,17 @@ def _surface_distance(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     return dist
 
 
+DEFAULT_TOLERANCES = (0.005, 0.05)
+"""(surface_tol, far) of :func:`check_inside`."""
+
+
 def check_inside(
     skeleton: Skeleton,
     vertices: Float[np.ndarray, "V 3"],
     faces: Int[np.ndarray, "F 3"],
     *,
-    surface_tol: float = 0.005,
-    far: float = 0.05,
+    surface_tol: float = DEFAULT_TOLERANCES[0],
+    far: float = DEFAULT_TOLERANCES[1],
 ) -> list[str]:
     """Warnings (one line each) for joints that are not where a skeleton inside the mesh should be.
 
@@ -45,6 +49,18 @@ def check_inside(
     often are, pass). Open meshes: an outside joint is reported when it is farther than
     ``far`` × diagonal from the surface.
     """
+    return check_inside_at(skeleton, vertices, faces, [(surface_tol, far)])[0]
+
+
+def check_inside_at(
+    skeleton: Skeleton,
+    vertices: Float[np.ndarray, "V 3"],
+    faces: Int[np.ndarray, "F 3"],
+    tolerances: list[tuple[float, float]],
+) -> list[list[str]]:
+    """:func:`check_inside` at several (surface_tol, far) pairs, the joints' winding numbers and
+    distances to the surface measured once (the costly part: every joint against every triangle).
+    """
     from ncflow.geometry.topology import mesh_topology
 
     vertices = np.asarray(vertices, dtype=np.float64)
@@ -55,12 +71,12 @@ def check_inside(
     pts = skeleton.positions
     outside = np.abs(winding_numbers(pts, tri)) < 0.5
     dist = _surface_distance(pts, tri)
-    warnings = []
-    tol = (surface_tol if closed else far) * diag
     where = "the mesh" if closed else "the (open) mesh"
-    for j in np.flatnonzero(outside & (dist > tol)):
-        warnings.append(
+    return [
+        [
             f"{skeleton.label(int(j))} is outside {where} (distance {dist[j]:.4g}, "
             f"{100 * dist[j] / diag:.1f}% of the mesh size)"
-        )
-    return warnings
+            for j in np.flatnonzero(outside & (dist > (surface_tol if closed else far) * diag))
+        ]
+        for surface_tol, far in tolerances
+    ]
