@@ -209,6 +209,16 @@ def test_off_polygons_split_when_all_one_size(tmp_path):
         load_mesh(mixed)
 
 
+def test_obj_line_endings_all_read_alike(tmp_path):
+    text = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2 4 \\\n 3\n"
+    meshes = [
+        load_mesh(write(tmp_path, f"{k}.obj", text.replace("\n", end)), validate=False)
+        for k, end in enumerate(["\n", "\r\n", "\r"])
+    ]
+    for m in meshes:
+        assert m.faces.tolist() == [[0, 1, 2], [1, 3, 2]] and m.n_vertices == 4
+
+
 def test_text_mesh_that_is_not_utf8_is_read(tmp_path):
     v, f = capsule(n_around=8, n_along=5)
     plain = tmp_path / "plain.obj"

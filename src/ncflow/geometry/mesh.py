@@ -197,11 +197,11 @@ def orientation(vertices: Float[np.ndarray, "V 3"], faces: Int[np.ndarray, "F 3"
     against the rest takes the side most of its volume about its area centroid comes from.
     """
     areas = face_areas(vertices, faces)
+    area = float(areas.sum())
     v, f = close_boundary(vertices, faces)
     # about the area centroid: a sum over faces wound both ways depends on the origin otherwise
-    center = (areas @ np.asarray(vertices, dtype=np.float64)[faces].mean(axis=1)) / max(float(areas.sum()), 1e-300)
+    center = (areas @ np.asarray(vertices, dtype=np.float64)[faces].mean(axis=1)) / max(area, 1e-300)
     volume = signed_volume(v - center, f)
-    area = float(areas.sum())
     if not abs(volume) >= tol * area**1.5:
         return 0
     return 1 if volume > 0 else -1

@@ -77,15 +77,12 @@ def _declared_polygon_sizes(path: Path) -> np.ndarray | None:
             face_lines = lines[start + nv : start + nv + nf]
             return np.asarray([int(t[0]) for t in face_lines], dtype=np.int64)
         if suffix == ".ply":
-            with open(path, "rb") as fh:
-                header = fh.read(4096).split(b"end_header")[0].decode("ascii", "replace")
+            header = _ply_header(path)
             if "format ascii" not in header:
                 return None
-            m_v = re.search(r"element vertex (\d+)", header)
-            m_f = re.search(r"element face (\d+)", header)
-            if not (m_v and m_f):
+            nv, nf = _ply_count(header, "vertex"), _ply_count(header, "face")
+            if nv is None or nf is None:
                 return None
-            nv, nf = int(m_v.group(1)), int(m_f.group(1))
             with open(path, errors="replace") as fh:
                 body = fh.read().split("end_header", 1)[1].strip().splitlines()
             return np.asarray([int(ln.split()[0]) for ln in body[nv : nv + nf]], dtype=np.int64)
@@ -94,14 +91,18 @@ def _declared_polygon_sizes(path: Path) -> np.ndarray | None:
     return None
 
 
-def _ply_face_count(path: Path) -> int | None:
-    """The face count a PLY header declares (None if unreadable)."""
+def _ply_header(path: Path) -> str:
+    """The text of a PLY file's header (up to ``end_header`` within its first 4 kB; empty if unreadable)."""
     try:
         with open(path, "rb") as fh:
-            header = fh.read(4096).split(b"end_header")[0].decode("ascii", "replace")
+            return fh.read(4096).split(b"end_header")[0].decode("ascii", "replace")
     except OSError:
-        return None
-    found = re.search(r"element face (\d+)", header)
+        return ""
+
+
+def _ply_count(header: str, element: str) -> int | None:
+    """The count a PLY header declares for ``element`` (None if it declares none)."""
+    found = re.search(rf"element {element} (\d+)", header)
     return int(found.group(1)) if found else None
 
 
@@ -291,21 +292,19 @@ def load_mesh(path: str | os.PathLike, *, weld: bool | None = None, validate: bo
     if faces.ndim != 2 or faces.shape[1] != 3:
         raise InputError(f"non-triangular faces (shape {faces.shape})", path)
     notes = ()
-    declared = _ply_face_count(path) if sizes is None and suffix == ".ply" else None
+    split = (
+        "(a quad along the diagonal from its first corner, larger polygons as fans from it); the outputs use the "
+        "triangles"
+    )
+    declared = _ply_count(_ply_header(path), "face") if sizes is None and suffix == ".ply" else None
     if declared is not None and faces.shape[0] > declared:  # a binary PLY: its polygons' sizes unread
-        notes = (
-            f"its {declared} faces became {faces.shape[0]} triangles: polygons split (a quad along the diagonal "
-            "from its first corner, larger polygons as fans from it); the outputs use the triangles",
-        )
+        notes = (f"its {declared} faces became {faces.shape[0]} triangles: polygons split {split}",)
     if polygons:
         if faces.shape[0] != int(np.sum(sizes - 2)):
             raise InputError(f"cannot split its {polygons} polygon faces into triangles", path)
         kinds = np.unique(sizes[sizes > 3])
         shown = ", ".join(str(k) for k in kinds[:5].tolist()) + (", ..." if kinds.size > 5 else "")
-        notes = (
-            f"{polygons} of {sizes.size} faces have [{shown}] corners: split into triangles (a quad along the "
-            "diagonal from its first corner, larger polygons as fans from it); the outputs use the triangles",
-        )
+        notes = (f"{polygons} of {sizes.size} faces have [{shown}] corners: split into triangles {split}",)
     file_index = np.arange(vertices.shape[0])
     if weld is None:
         weld = suffix in _WELD_BY_DEFAULT

@@ -11,9 +11,10 @@ corner, in the file's order. Everything else (normals, texture coordinates, grou
 materials, smoothing groups, lines, points) is skipped, and no material library or texture is
 opened. ``#`` starts a comment anywhere on a line, and a line ending in a backslash continues on the next.
 
-Hostile files: the file size is limited (:data:`MAX_OBJ_BYTES`), text that is not UTF-8 is read as
-Latin-1 (only ASCII is parsed), indices must lie in range and coordinates must be finite numbers;
-each problem is one :class:`~ncflow.errors.InputError` line naming the file and the line.
+Hostile files: the file size is limited (:data:`MAX_OBJ_BYTES`) and read a line at a time as Latin-1
+(only ASCII is parsed, and any byte decodes), indices must lie in range and coordinates must be
+finite numbers; each problem is one :class:`~ncflow.errors.InputError` line naming the file and the
+line.
 """
 
 from __future__ import annotations
@@ -71,30 +72,31 @@ def check_indices(index: np.ndarray, count: int, lines: list[int], what: str, pa
 
 
 def obj_lines(path: Path):
-    """(line number, tokens) of every line with content: comments cut, continuations joined."""
+    """(line number, tokens) of every line with content: comments cut, continuations joined. Read a
+    line at a time (memory: one line), with any of the usual line endings, as Latin-1: only ASCII is
+    parsed, and every byte decodes.
+    """
     size = os.stat(path).st_size
     if size > MAX_OBJ_BYTES:
         raise InputError(f"is {size} bytes, more than the limit of {MAX_OBJ_BYTES}", path)
+    pending: list[str] = []
+    lineno = 0
     try:
-        data = path.read_bytes()
+        with open(path, encoding="latin-1") as fh:
+            for lineno, line in enumerate(fh, start=1):
+                line = line.split("#", 1)[0].rstrip()
+                if line.endswith("\\"):
+                    pending.append(line[:-1])
+                    continue
+                tokens = " ".join([*pending, line]).split()
+                pending = []
+                if tokens:
+                    yield lineno, tokens
     except OSError as exc:
         raise InputError(f"cannot read file ({exc.strerror or first_line(exc)})", path) from None
-    try:
-        text = data.decode("utf-8")
-    except UnicodeDecodeError:
-        text = data.decode("latin-1")
-    pending: list[str] = []
-    for lineno, line in enumerate(text.splitlines(), start=1):
-        line = line.split("#", 1)[0]
-        if line.rstrip().endswith("\\"):
-            pending.append(line.rstrip()[:-1])
-            continue
-        tokens = " ".join([*pending, line]).split()
-        pending = []
-        if tokens:
-            yield lineno, tokens
-    if pending and " ".join(pending).split():
-        yield lineno, " ".join(pending).split()
+    tokens = " ".join(pending).split()
+    if tokens:
+        yield lineno, tokens
 
 
 def read_obj(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
