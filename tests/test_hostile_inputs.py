@@ -402,6 +402,31 @@ def test_trimesh_resources_are_confined_to_the_mesh_folder(model_dir, monkeypatc
         resolver.namespaced("..").get("secret.mtl")
 
 
+def test_obj_reader_opens_only_its_file_and_bounds_its_size(tmp_path, monkeypatch):
+    import builtins
+
+    import ncflow.io.obj as obj_module
+
+    (tmp_path / "secret.mtl").write_text("newmtl m\n")
+    obj = tmp_path / "in" / "tri.obj"
+    obj.parent.mkdir()
+    obj.write_text("mtllib ../secret.mtl\nusemtl m\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    opened = []
+    real_open = builtins.open
+
+    def spy(file, *args, **kwargs):
+        opened.append(os.fspath(file))
+        return real_open(file, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "open", spy)
+    assert load_mesh(obj).n_faces == 1
+    assert {os.path.realpath(p) for p in opened if isinstance(p, str)} == {os.path.realpath(obj)}
+    monkeypatch.setattr(builtins, "open", real_open)
+    monkeypatch.setattr(obj_module, "MAX_OBJ_BYTES", 20)
+    with pytest.raises(InputError, match=r"tri\.obj: is \d+ bytes, more than the limit of 20"):
+        load_mesh(obj)
+
+
 @pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs FIFOs")
 def test_input_file_that_is_a_fifo_is_refused(tmp_path):
     for name, read in (
