@@ -14,7 +14,7 @@ from ncflow.geometry.mesh import Mesh
 from ncflow.geometry.overlap import self_overlap
 from ncflow.io.meshes import save_mesh
 from ncflow.io.result import read_result
-from ncflow.match.inputs import check_precision, check_seams, check_sizes, load_inputs, size_ratio
+from ncflow.match.inputs import check_precision, check_sizes, load_inputs, size_ratio
 from ncflow.match.matcher import Matcher, match
 from ncflow.match.prepare import prepare
 from ncflow.skeleton import Skeleton, save_skeleton
@@ -200,7 +200,7 @@ def test_cli_match_writes_contract_and_is_reproducible(tmp_path, pair, capsys):
         ("unreadable", "cannot read mesh"),
         ("skeleton_outside", "skeleton does not fit"),
         ("skeleton_as_mesh", "unsupported skeleton format"),
-        ("degenerate", "zero area"),
+        ("degenerate", "none of its"),
         ("bad_setting", "flow.width must be at least 1"),
         ("target_in_millimetres", "target_mm.ply: the target is 1.01e+03x the size of the source"),
     ],
@@ -220,7 +220,7 @@ def test_cli_match_bad_input_one_line_error_no_output(tmp_path, pair, capsys, ca
     elif case == "degenerate":
         src = pair[0]
         v = src.vertices.copy()
-        v[src.faces[: len(src.faces) // 2].ravel()] = 0.0  # collapse half the faces
+        v[:, :2] = 0.0  # the capsule flattened onto its axis: not one face with an area
         s = str(tmp_path / "degenerate.ply")
         save_mesh(s, v, src.faces)
     elif case == "bad_setting":
@@ -300,13 +300,22 @@ def test_a_mesh_far_from_the_origin_for_its_size_is_warned_of(pair):
     assert "about 1 digits" in warning
 
 
-def test_a_mesh_split_at_seams_is_warned_of(pair):
-    src = pair[0]
-    assert check_seams(src, "source") == []
+def test_a_mesh_split_at_seams_is_welded_for_the_match_with_a_warning(pair):
+    src, tgt, skel, *_ = pair
+    cfg = small_config(placement="none", pose_search="false")
     soup = Mesh(src.vertices[src.faces].reshape(-1, 3), np.arange(3 * src.n_faces).reshape(-1, 3), "soup.ply")
-    (warning,) = check_seams(soup, "source")
+    given, problem = prepare(src, tgt, skel, cfg), prepare(soup, tgt, skel, cfg)
     n = 3 * src.n_faces
-    assert warning.startswith(f"soup.ply: {n - src.n_vertices} of the source's {n} vertices lie exactly where")
+    (warning,) = problem.warnings
+    assert warning.startswith(
+        f"soup.ply: repaired for the match (the outputs keep its vertices): welded {n - src.n_vertices}"
+    )
+    # the match computes on the welded mesh (the source's own vertices, first copies), the outputs on the soup's
+    first_copies = src.faces.reshape(-1)[problem.source_repair.vertex_origin]
+    np.testing.assert_allclose(problem.working.vertices, given.working.vertices[first_copies], atol=1e-12)
+    assert problem.source_vertices.shape == (n, 3) and problem.source is soup
+    assert problem.source_topology.edges.shape == given.source_topology.edges.shape
+    assert not problem.source_topology.has_boundary
 
 
 def test_meshes_given_as_objects_are_validated(pair):

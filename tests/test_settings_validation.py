@@ -96,6 +96,10 @@ def test_overrides_are_checked_and_new_settings_keep_working(tmp_path):
         ("working_vertices=50", "working_vertices must be at least 100"),
         ("x" * 500 + "=1", "unknown setting"),
         ("a b=1", "is not a setting name"),
+        ("flow.widht=3", r"unknown setting\(s\) flow.widht; did you mean flow.width\?"),
+        ("repiar.weld_tolerance=0", r"unknown setting\(s\) repiar; did you mean repair\?"),
+        ("repair.weld_tolerance=0.5", r"repair.weld_tolerance must be in \[0, 0.01\]"),
+        ("repair.min_component=1", r"repair.min_component must be in \[0, 1\)"),
     ]:
         with pytest.raises(InputError, match=message) as info:
             apply_overrides(preset("fast"), [item])

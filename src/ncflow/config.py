@@ -37,6 +37,7 @@ contract; a setting and its check are kept in one file so that they cannot drift
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
 import os
 import tomllib
@@ -45,6 +46,7 @@ import typing
 from dataclasses import dataclass, field
 
 from ncflow.errors import InputError
+from ncflow.geometry.repair import MAX_WELD_TOLERANCE
 
 METRICS = ("varifold", "normal-cycles")
 #: largest seed + 1 (NumPy and JAX take 32-bit seeds)
@@ -183,6 +185,20 @@ class TissueConfig:
     file: str | None = None
 
 
+@dataclass(frozen=True)
+class RepairConfig:
+    """The intake step every mesh passes before it is matched (:func:`ncflow.geometry.repair.repair_mesh`):
+    exactly coincident vertices are welded, zero-area and duplicate faces dropped, non-manifold edges and
+    vertices split. ``weld_tolerance``: weld vertices closer than this fraction of the mesh's
+    bounding-box diagonal too (0: exactly coincident ones only; at most 0.01). ``min_component``: leave
+    out of the data terms the connected components with less than this share of a mesh's area (debris
+    of a scan; 0 keeps every component). The outputs keep one row per vertex of the files either way.
+    """
+
+    weld_tolerance: float = 0.0
+    min_component: float = 0.0
+
+
 RESULT_NEUTRAL = ("jit_cache", "compile_ahead", "setup_cache")
 """Settings of :class:`Config` that never change a result (left out where configurations are compared)."""
 
@@ -222,6 +238,7 @@ class Config:
     constraints: ConstraintConfig = field(default_factory=ConstraintConfig)
     weights: WeightsConfig = field(default_factory=WeightsConfig)
     tissue: TissueConfig = field(default_factory=TissueConfig)
+    repair: RepairConfig = field(default_factory=RepairConfig)
     optimizer: str = "adabelief"
     clip_norm: float = 0.5
     weight_decay: float = 1e-4
@@ -400,10 +417,17 @@ def _check_keys(data: dict, where: str | None, prefix: str = "") -> None:
             raise InputError(f"setting names must be words, got {name} ({type(key).__name__})", where)
 
 
-def _names(keys) -> str:
-    """Setting names for a message: at most 10, each cut to 40 characters."""
-    shown = [k if k.isidentifier() and len(k) <= 40 else quote(k, 40) for k in sorted(keys)[:10]]
-    return ", ".join(shown) + (", …" if len(keys) > 10 else "")
+def _names(keys, most: int = 10) -> str:
+    """Setting names for a message: at most ``most``, each cut to 40 characters."""
+    shown = [k if k.isidentifier() and len(k) <= 40 else quote(k, 40) for k in sorted(keys)[:most]]
+    return ", ".join(shown) + (", …" if len(keys) > most else "")
+
+
+def _unknown(unknown, names, prefix: str = "") -> str:
+    """The message for unknown setting names: the closest known ones first, then the known ones."""
+    close = sorted({m for u in unknown for m in difflib.get_close_matches(str(u)[:100], names, n=3, cutoff=0.7)})
+    hint = f"; did you mean {', '.join(prefix + c for c in close)}?" if close else ""
+    return f"unknown setting(s) {prefix}{_names(unknown)}{hint} (known: {_names(names, 12)})"
 
 
 def _build(cls, data: dict, where: str):
@@ -412,7 +436,7 @@ def _build(cls, data: dict, where: str):
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = set(data) - names
     if unknown:
-        raise InputError(f"{where}: unknown setting(s) {_names(unknown)}; known: {', '.join(sorted(names))}")
+        raise InputError(f"{where}: {_unknown(unknown, names)}")
     base = cls()
     kwargs = {}
     for name, value in data.items():
@@ -427,7 +451,7 @@ def _merge(config: Config, data: dict, where: str | None) -> Config:
     names = {f.name for f in dataclasses.fields(Config)}
     unknown = set(data) - names
     if unknown:
-        raise InputError(f"unknown setting(s) {_names(unknown)}; known: {', '.join(sorted(names))}", where)
+        raise InputError(_unknown(unknown, names), where)
     updates = {}
     for name, value in data.items():
         current = getattr(config, name)
@@ -437,7 +461,7 @@ def _merge(config: Config, data: dict, where: str | None) -> Config:
             sub_names = {f.name for f in dataclasses.fields(current)}
             bad = set(value) - sub_names
             if bad:
-                raise InputError(f"unknown setting(s) {name}.{_names(bad)}", where)
+                raise InputError(_unknown(bad, sub_names, f"{name}."), where)
             updates[name] = dataclasses.replace(
                 current, **{k: _coerce(v, sub_hints[k], f"{name}.{k}") for k, v in value.items()}
             )
@@ -698,6 +722,14 @@ def validate_config(config: Config) -> Config:
             "tissue.edge_length_fac must be in (0, 1]",
         ),
         (_finite(tissue.epsilon) and tissue.epsilon > 0, "tissue.epsilon must be positive"),
+        (
+            _finite(config.repair.weld_tolerance) and 0 <= config.repair.weld_tolerance <= MAX_WELD_TOLERANCE,
+            f"repair.weld_tolerance must be in [0, {MAX_WELD_TOLERANCE:g}] (a fraction of the mesh's size)",
+        ),
+        (
+            _finite(config.repair.min_component) and 0 <= config.repair.min_component < 1,
+            "repair.min_component must be in [0, 1) (a share of the mesh's area)",
+        ),
         (config.optimizer in ("adabelief", "vectoradam"), "optimizer must be 'adabelief' or 'vectoradam'"),
         (_finite(config.clip_norm) and config.clip_norm > 0, "clip_norm must be positive"),
         (_finite(config.weight_decay) and config.weight_decay >= 0, "weight_decay must be non-negative"),

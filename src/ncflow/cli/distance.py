@@ -55,13 +55,14 @@ def run(args: argparse.Namespace) -> int:
         jax.config.update("jax_enable_x64", True)
     import jax.numpy as jnp
 
+    from ncflow.geometry.mesh import repaired_mesh
     from ncflow.geometry.normalize import fit_normalization
     from ncflow.geometry.topology import mesh_topology
     from ncflow.io.meshes import load_mesh
     from ncflow.measures.registry import get_metric
 
     t0 = time.perf_counter()
-    a, b = load_mesh(args.a), load_mesh(args.b)
+    a, b = (repaired_mesh(load_mesh(path))[0] for path in (args.a, args.b))
     va, vb = a.vertices, b.vertices
     if args.normalize:
         norm = fit_normalization(a.vertices, a.faces)

@@ -103,6 +103,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="then move it by FRAC (or uniformly LO..HI) x the source's bounding-box diagonal in a random "
         "direction (default: no translation)",
     )
+    p.add_argument(
+        "--defects",
+        metavar="NAME[,NAME...]",
+        help="give every target these defects, in order, keeping the ground truth of its own vertices: soup "
+        "(unshared vertices), degenerate (1.6%% zero-area faces), duplicates (2%% faces twice), stray (1%% "
+        "vertices in no face), fins (triangles on 1%% of the edges: edges of 3 and 4 faces), fragment / "
+        "fragment-flipped (a floor patch of 3%% of the area, wound up / down), pinch (a tetrahedron touching "
+        "the surface at one vertex)",
+    )
     p.add_argument("--format", choices=("ply", "obj"), default="ply", help="mesh format (default ply)")
     p.add_argument("--mano", metavar="MODEL", help="MANO model file (.npz or .pkl), supplied by the user")
     p.add_argument(
@@ -242,6 +251,11 @@ def run(args: argparse.Namespace) -> int:
             )
             for k in range(args.n)
         )
+    if args.defects:
+        from ncflow.synthetic.defects import add_defects, parse_defects
+
+        defects = parse_defects(args.defects)
+        pairs = (add_defects(pair, defects, seed=args.seed + k) for k, pair in enumerate(pairs))
     csv_path = write_pairs(pairs, out, fmt=args.format, verbose=True, overwrite=args.overwrite)
     print(f"wrote {csv_path}")
     return 0

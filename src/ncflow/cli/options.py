@@ -208,6 +208,13 @@ def add_config_arguments(p: argparse.ArgumentParser) -> None:
         help="divergence-free (volume-preserving) flow field (turns flow.skinning off)",
     )
     p.add_argument(
+        "--weld",
+        type=float,
+        metavar="TOL",
+        help="weld vertices closer than TOL x the mesh's size (bounding-box diagonal; at most 0.01) before "
+        "matching; exactly coincident ones are always welded (repair.weld_tolerance)",
+    )
+    p.add_argument(
         "--tissue",
         metavar="FILE",
         help="reuse the exact soft tissue of an earlier run (the .npz its metrics.json names under tissue.cache_file)",
@@ -245,6 +252,9 @@ def config_from_args(args: argparse.Namespace):
         cfg = dataclasses.replace(cfg, optimizer=args.optimizer)
     if args.div_free:
         cfg = dataclasses.replace(cfg, flow=dataclasses.replace(cfg.flow, div_free=True, skinning=False))
+    if getattr(args, "weld", None) is not None:
+        check_number(args.weld, "--weld", lo=0.0, hi=0.01)
+        cfg = dataclasses.replace(cfg, repair=dataclasses.replace(cfg.repair, weld_tolerance=args.weld))
     if getattr(args, "tissue", None):
         cfg = dataclasses.replace(cfg, tissue=dataclasses.replace(cfg.tissue, file=str(args.tissue)))
     cfg = apply_overrides(cfg, args.set)

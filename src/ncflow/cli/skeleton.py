@@ -66,10 +66,11 @@ def run_info(args: argparse.Namespace) -> int:
     skel = _load(args, args.skeleton)
     warnings: list[str] = []
     if args.mesh:
+        from ncflow.geometry.mesh import repaired_mesh
         from ncflow.io.meshes import load_mesh
         from ncflow.skeleton.checks import check_inside
 
-        mesh = load_mesh(args.mesh)
+        mesh = repaired_mesh(load_mesh(args.mesh))[0]
         warnings = check_inside(skel, mesh.vertices, mesh.faces)
     lengths = skel.bone_lengths
     bones = [

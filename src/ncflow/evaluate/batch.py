@@ -157,10 +157,11 @@ def make_tissue_file(job: TissueJob) -> dict:
     ``job.path``; runs on a worker.
     """
     from ncflow.io.meshes import load_mesh
+    from ncflow.match.inputs import intake
     from ncflow.match.prepare import source_tissue, working_source
     from ncflow.tissue import write_tissue_file
 
-    _, _, work = working_source(load_mesh(job.source), job.config)
+    _, work = working_source(intake(load_mesh(job.source), "source", job.config)[0], job.config)
     c, info = source_tissue(work, job.config)
     write_tissue_file(job.path, c)
     return {"path": job.path, "n_centroids": int(c.shape[0]), "sha256": info["sha256"]}

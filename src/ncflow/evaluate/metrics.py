@@ -20,7 +20,7 @@ from jaxtyping import Bool, Float, Int
 from ncflow.errors import InputError
 from ncflow.evaluate.geodesics import GeodesicInfo, pair_geodesic_distances
 from ncflow.geometry.closest import closest_points_on_surface
-from ncflow.geometry.mesh import Mesh, enclosed_volume, face_areas
+from ncflow.geometry.mesh import Mesh, enclosed_volume, face_areas, repaired_mesh
 
 TAU_MAX = {"geodesic": 0.20, "chamfer": 0.10, "conformal": 0.15}
 
@@ -68,7 +68,17 @@ def geodesic_errors(
 
     Returns:
         (n,) errors (scale-free; +inf for points on different connected components).
+
+    The distances are taken on the source after the intake step
+    (:func:`~ncflow.geometry.mesh.repaired_mesh`: a triangle soup or a mesh split at its seams is one
+    surface there; the points are carried over, :meth:`~ncflow.geometry.repair.Repair.points_from_input`);
+    a clean source is used as it is.
     """
+    clean, rep = repaired_mesh(source)
+    if rep.changed:
+        pred_face, pred_bary = rep.points_from_input(source.vertices, source.faces, pred_face, pred_bary)
+        gt_face, gt_bary = rep.points_from_input(source.vertices, source.faces, gt_face, gt_bary)
+        source = clean
     v, f = source.vertices, source.faces
     root_area = float(np.sqrt(face_areas(v, f).sum()))
     d, info = pair_geodesic_distances(

@@ -14,6 +14,8 @@ import dataclasses
 import numpy as np
 from jaxtyping import Float, Int
 
+from ncflow.geometry.repair import repair_mesh
+
 
 @dataclasses.dataclass(frozen=True)
 class Decimation:
@@ -22,7 +24,8 @@ class Decimation:
     Attributes:
         vertices: (n, 3) working vertices, ``original[kept]``.
         faces: (m, 3) working triangles (indices into ``vertices``).
-        kept: (n,) index of each working vertex in the original mesh.
+        kept: (n,) index of each working vertex in the original mesh (distinct, but for the copies
+            of a vertex the repair split where the decimation left a non-manifold vertex).
     """
 
     vertices: Float[np.ndarray, "n 3"]
@@ -32,6 +35,12 @@ class Decimation:
 
 def decimate(vertices: Float[np.ndarray, "V 3"], faces: Int[np.ndarray, "F 3"], max_vertices: int) -> Decimation:
     """At most about ``max_vertices`` vertices: the mesh itself when it is not larger.
+
+    Any mesh is taken: vertices in no face are left out, a mesh whose faces are already within the
+    face budget (about twice ``max_vertices``, what a closed surface of that many vertices has) is
+    kept whole, and the decimated mesh is repaired (:func:`~ncflow.geometry.repair.repair_mesh`:
+    quadric decimation can leave zero-area faces and edges of more than two faces), so what comes
+    back has every edge in at most two faces.
 
     Args:
         vertices: (V, 3) original vertices.
@@ -45,15 +54,22 @@ def decimate(vertices: Float[np.ndarray, "V 3"], faces: Int[np.ndarray, "F 3"], 
     f = np.asarray(faces, np.int64)
     if v.shape[0] <= max_vertices:
         return Decimation(v, f, np.arange(v.shape[0], dtype=np.int64))
-    dv, df = fast_simplification.simplify(v, f.astype(np.int32), target_count=max(4, 2 * int(max_vertices)))
+    used = np.unique(f)
+    budget = max(4, 2 * int(max_vertices))
+    if used.size <= max_vertices or f.shape[0] <= budget:  # nothing to decimate: the faces' vertices alone
+        remap = np.full(v.shape[0], -1, np.int64)
+        remap[used] = np.arange(used.size)
+        return Decimation(v[used], remap[f], used)
+    dv, df = fast_simplification.simplify(v, f.astype(np.int32), target_count=budget)
     dv, df = np.asarray(dv, np.float64), np.asarray(df, np.int64)
     used = np.unique(df)
     remap = np.full(dv.shape[0], -1, np.int64)
     remap[used] = np.arange(used.size)
     dv, df = dv[used], remap[df]
     kept = _distinct_nearest(cKDTree(v), dv)
-    df = df[(df[:, 0] != df[:, 1]) & (df[:, 1] != df[:, 2]) & (df[:, 0] != df[:, 2])]
-    return Decimation(v[kept], df, kept)
+    fixed = repair_mesh(v[kept], df)
+    kept = kept[fixed.vertex_origin]
+    return Decimation(v[kept], fixed.faces, kept)
 
 
 def _distinct_nearest(tree, points: np.ndarray) -> np.ndarray:

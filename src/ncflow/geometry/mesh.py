@@ -4,8 +4,10 @@ Meshes are plain arrays: ``vertices`` (V, 3) float64 and ``faces`` (F, 3) int64,
 winding order of the file. Vertices are never reordered: :func:`weld_vertices` merges exactly
 coincident vertices keeping first occurrences in order, and a mesh read with welding keeps the map
 back to the file's vertices in :attr:`Mesh.file_index`. :func:`validate_mesh` is the check every
-reader runs (finite coordinates, indices in range, few zero-area faces, at most four faces per
-edge), raising one :class:`~ncflow.errors.InputError` line. Reading and writing files is in
+reader runs (finite coordinates, indices in range, a face with an area), raising one
+:class:`~ncflow.errors.InputError` line; what can be repaired (zero-area, duplicate and
+non-manifold faces, triangle soups) is repaired by :mod:`ncflow.geometry.repair`, the intake step
+every mesh passes before it is matched. Reading and writing files is in
 :mod:`ncflow.io.meshes`, edge tables in :mod:`ncflow.geometry.topology` and the normalising
 similarity in :mod:`ncflow.geometry.normalize`.
 """
@@ -18,7 +20,8 @@ import numpy as np
 from jaxtyping import Float, Int
 
 from ncflow.errors import InputError
-from ncflow.geometry.topology import close_boundary, mesh_topology
+from ncflow.geometry.repair import AREA_TOL, Repair, repair_mesh
+from ncflow.geometry.topology import close_boundary
 from ncflow.geometry.winding import signed_volume
 
 
@@ -143,16 +146,13 @@ def validate_mesh(
     vertices: Float[np.ndarray, "V 3"],
     faces: Int[np.ndarray, "F 3"],
     name: str | None = None,
-    *,
-    max_degenerate_fraction: float = 0.01,
-    area_tol: float = 1e-12,
 ) -> None:
-    """Check that a mesh is usable; raise :class:`InputError` with one line otherwise.
+    """Check that a mesh can be read as one; raise :class:`InputError` with one line otherwise.
 
     Checks: (V, 3) finite coordinates within ±:data:`COORDINATE_LIMIT` on a mesh at least
-    :data:`SMALLEST_EXTENT` across, (F, 3) faces with indices in range, at least one face, at
-    most ``max_degenerate_fraction`` of faces with area below ``area_tol`` × (bounding-box
-    diagonal)², and no edge shared by more than 4 faces.
+    :data:`SMALLEST_EXTENT` across, (F, 3) faces with indices in range, and at least one face with
+    an area. Defects that can be repaired (zero-area, duplicate or non-manifold faces, a triangle
+    soup) are left to the intake step, :func:`ncflow.geometry.repair.repair_mesh`.
     """
     vertices = np.asarray(vertices)
     faces = np.asarray(faces)
@@ -173,16 +173,20 @@ def validate_mesh(
             "cannot resolve; scale the mesh up",
             name,
         )
-    areas = face_areas(vertices, faces)
-    degenerate = areas <= area_tol * diag**2
-    n_deg = int(degenerate.sum())
-    if n_deg > max_degenerate_fraction * faces.shape[0]:
-        raise InputError(
-            f"{n_deg} of {faces.shape[0]} faces have zero area (more than "
-            f"{100 * max_degenerate_fraction:g}% allowed; first: face {int(np.argmax(degenerate))})",
-            name,
-        )
-    mesh_topology(faces, vertices.shape[0], name=name)
+    if not np.any(face_areas(vertices, faces) > AREA_TOL * diag**2):
+        raise InputError(f"none of its {faces.shape[0]} faces has an area (every face is degenerate)", name)
+
+
+def repaired_mesh(mesh: Mesh, *, weld_tolerance: float = 0.0, min_component: float = 0.0) -> tuple[Mesh, Repair]:
+    """The mesh after the intake step (:func:`ncflow.geometry.repair.repair_mesh`; its name and notes
+    kept, :attr:`Mesh.file_index` leading to the file's vertices) and the repair, whose maps lead back
+    to ``mesh``.
+    """
+    r = repair_mesh(
+        mesh.vertices, mesh.faces, weld_tolerance=weld_tolerance, min_component=min_component, name=mesh.name
+    )
+    origin = r.vertex_origin if mesh.file_index is None else np.asarray(mesh.file_index)[r.vertex_origin]
+    return Mesh(vertices=r.vertices, faces=r.faces, name=mesh.name, file_index=origin, notes=mesh.notes), r
 
 
 # ----------------------------------------------------------------------------------------------

@@ -55,8 +55,12 @@ class Topology:
 def mesh_topology(faces: Int[np.ndarray, "F 3"], n_vertices: int | None = None, name: str | None = None) -> Topology:
     """Build the edge tables of a triangle mesh (closed, open, or non-manifold with ≤ 4 faces per edge).
 
+    Precondition: at most four faces on an edge. Every mesh a user gives passes the intake step
+    (:func:`ncflow.geometry.repair.repair_mesh`: at most two faces on an edge, and one fan per vertex,
+    so that closing its holes by :func:`close_boundary` keeps at most two faces on an edge too).
+
     Raises:
-        InputError: an edge is shared by more than four faces.
+        InputError: an edge is shared by more than four faces (a mesh that skipped the intake step).
     """
     faces = np.asarray(faces, dtype=np.int64)
     nf = faces.shape[0]
@@ -75,7 +79,7 @@ def mesh_topology(faces: Int[np.ndarray, "F 3"], n_vertices: int | None = None, 
         worst = int(np.argmax(counts))
         raise InputError(
             f"non-manifold edge ({int(uniq[worst] // nv)}, {int(uniq[worst] % nv)}) is shared by "
-            f"{int(counts[worst])} faces (at most 4 supported)",
+            f"{int(counts[worst])} faces (at most 4 supported; repair the mesh first: ncflow.geometry.repair)",
             name,
         )
     edges = np.stack([uniq // nv, uniq % nv], axis=1)

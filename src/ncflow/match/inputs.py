@@ -4,11 +4,13 @@ that are each valid on their own.
 * a target of another scale than the source (other units): refused beyond 2× (:func:`check_sizes`);
 * a target wound the other way from the source (one of the two inside out): its faces turned for the
   match (:func:`target_faces_like_source`);
-* a mesh far from the origin for its size, or split at its seams: warnings (:func:`check_precision`,
-  :func:`check_seams`);
+* a mesh far from the origin for its size: a warning (:func:`check_precision`);
 * a skeleton outside the source (:func:`check_skeleton_placement`).
 
-:func:`check_inputs` runs them all; :func:`ncflow.match.prepare.prepare` calls it.
+Before them, every mesh passes the intake step (:func:`intake`): a triangle soup or a mesh split at its
+seams is welded, zero-area and duplicate faces are dropped, non-manifold edges and vertices split
+(:mod:`ncflow.geometry.repair`), with one warning; the checks and the match take the repaired meshes.
+:func:`check_inputs` runs the checks; :func:`ncflow.match.prepare.prepare` calls both.
 """
 
 from __future__ import annotations
@@ -16,7 +18,8 @@ from __future__ import annotations
 import numpy as np
 
 from ncflow.errors import InputError
-from ncflow.geometry.mesh import Mesh, face_areas, orientation, validate_mesh
+from ncflow.geometry.mesh import Mesh, face_areas, orientation, repaired_mesh, validate_mesh
+from ncflow.geometry.repair import Repair
 from ncflow.io.meshes import load_mesh
 from ncflow.skeleton import Skeleton, load_skeleton
 from ncflow.skeleton.checks import DEFAULT_TOLERANCES, check_inside_at
@@ -97,24 +100,17 @@ def check_precision(mesh: Mesh, role: str) -> list[str]:
     return []
 
 
-SEAM_WARNING = 0.01
-"""A mesh with more than this fraction of its vertices at the place of another gets a warning
-(:func:`check_seams`)."""
-
-
-def check_seams(mesh: Mesh, role: str) -> list[str]:
-    """A warning when many vertices lie exactly where another does: a mesh split at its texture or
-    normal seams, or a triangle soup (a PLY exported per face). The surface then has cracks there,
-    which the Normal Cycles see as boundary, and the tissue and the skinning treat the pieces apart.
+def intake(mesh: Mesh, role: str, config) -> tuple[Mesh, Repair, list[str]]:
+    """The intake step of a match (:func:`~ncflow.geometry.mesh.repaired_mesh` with the ``repair``
+    settings): the mesh the match computes on, the repair with its maps back to ``mesh`` (the outputs
+    keep one row per vertex of the file), and a warning saying what was repaired and how much.
     """
-    n = mesh.n_vertices
-    coincident = n - np.unique(mesh.vertices, axis=0).shape[0]
-    if coincident > SEAM_WARNING * n:
-        return [
-            f"{mesh.name or role}: {coincident} of the {role}'s {n} vertices lie exactly where another does (a mesh "
-            "split at seams, or a triangle soup): the match sees cracks there; weld them first"
-        ]
-    return []
+    clean, r = repaired_mesh(
+        mesh, weld_tolerance=config.repair.weld_tolerance, min_component=config.repair.min_component
+    )
+    summary = r.summary()
+    note = f"{mesh.name or role}: repaired for the match (the outputs keep its vertices): {summary}"
+    return clean, r, [note] if summary else []
 
 
 def target_faces_like_source(src: Mesh, tgt: Mesh) -> tuple[np.ndarray, list[str]]:
@@ -159,5 +155,5 @@ def check_inputs(src: Mesh, tgt: Mesh, skel: Skeleton) -> tuple[np.ndarray, list
     tgt_f, turned = target_faces_like_source(src, tgt)
     meshes = ((src, "source"), (tgt, "target"))
     notes = [f"{m.name or role}: {n}" for m, role in meshes for n in m.notes]
-    notes += [w for m, role in meshes for w in check_precision(m, role) + check_seams(m, role)]
+    notes += [w for m, role in meshes for w in check_precision(m, role)]
     return tgt_f, notes + check_sizes(src, tgt) + turned + check_skeleton_placement(skel, src)

@@ -1,6 +1,7 @@
 """Inputs → the normalised problem the matcher trains on (DESIGN.md "Pipeline", first steps).
 
-Loads and checks the meshes and the skeleton, fits the one similarity that normalises source,
+Loads and checks the meshes and the skeleton, repairs the meshes for the match (the intake step,
+:func:`ncflow.match.inputs.intake`), fits the one similarity that normalises source,
 target and skeleton (same identity, same scale), places the target rigidly on the source
 (:mod:`ncflow.match.placement`) and searches the skeleton pose that explains it
 (:mod:`ncflow.match.pose_search`) — the two together, since a rigid fit alone is pulled by the
@@ -26,10 +27,11 @@ from ncflow.geometry.decimate import Decimation, decimate
 from ncflow.geometry.mesh import Mesh
 from ncflow.geometry.normalize import Normalization, fit_normalization
 from ncflow.geometry.overlap import self_overlap
+from ncflow.geometry.repair import Repair
 from ncflow.geometry.topology import Topology, mesh_topology
 from ncflow.io.atomic import computed_once
 from ncflow.io.files import read_npz_arrays
-from ncflow.match.inputs import check_inputs, load_inputs
+from ncflow.match.inputs import check_inputs, intake, load_inputs
 from ncflow.match.placement import Placement, place_target, placement_candidates
 from ncflow.match.pose_search import PoseSearchResult, search_poses
 from ncflow.skeleton import Skeleton
@@ -46,11 +48,17 @@ class Problem:
     Attributes:
         source, target, skeleton: the inputs as given (user coordinates).
         normalization: the similarity applied to all three.
-        source_vertices: (V, 3) normalised source vertices (float64), full resolution.
-        working: the normalised source the training runs on (:func:`working_source`): the source
-            itself, or a decimated copy made of source vertices when it has more than
+        source_vertices: (V, 3) normalised source vertices (float64), full resolution, every vertex of
+            the source as given (the outputs have a row for each).
+        working: the normalised source the training runs on (:func:`working_source`): the source after
+            the intake step, or a decimated copy made of its vertices when it has more than
             ``working_vertices`` vertices.
-        target_vertices: (W, 3) normalised target vertices, placed on the source (float64).
+        target_vertices: (W, 3) normalised vertices of the target after the intake step, placed on
+            the source (float64): the mesh the data terms see.
+        target_points: (Vt, 3) every vertex of the target as given, normalised and placed: the points
+            the correspondence maps.
+        source_repair, target_repair: the intake step's repairs (:func:`~ncflow.match.inputs.intake`),
+            with the maps from the repaired meshes back to the given ones.
         placement: the rigid motion that placed them (:mod:`ncflow.match.placement`).
         skeleton_normalized: the skeleton in normalised coordinates.
         source_topology: edge table of the working source.
@@ -80,6 +88,9 @@ class Problem:
     source_vertices: Float[np.ndarray, "V 3"]
     working: Decimation
     target_vertices: Float[np.ndarray, "W 3"]
+    target_points: Float[np.ndarray, "Vt 3"]
+    source_repair: Repair
+    target_repair: Repair
     placement: Placement
     skeleton_normalized: Skeleton
     source_topology: Topology
@@ -114,16 +125,15 @@ def uses_tissue(config) -> bool:
     return config.sampling.tissue_samples > 0 and config.weights.tissue > 0
 
 
-def working_source(src: Mesh, config, message=lambda text: None) -> tuple[Normalization, np.ndarray, Decimation]:
-    """The source's normalisation, its (V, 3) normalised vertices and the working copy the training
-    runs on (:func:`~ncflow.geometry.decimate.decimate` to ``working_vertices``; the source itself
-    when it is not larger).
+def working_source(src: Mesh, config, message=lambda text: None) -> tuple[Normalization, Decimation]:
+    """The source's normalisation and the normalised working copy the training runs on
+    (:func:`~ncflow.geometry.decimate.decimate` to ``working_vertices``; the source itself when it is
+    not larger). ``src``: the source after the intake step (:func:`~ncflow.match.inputs.intake`).
     """
     norm = fit_normalization(src.vertices, src.faces)
-    src_v = norm.apply(src.vertices)
     if config.working_vertices is not None and src.n_vertices > config.working_vertices:
         message(f"decimating the source to about {config.working_vertices} vertices for training ...")
-    return norm, src_v, decimate(src_v, src.faces, config.working_vertices or src.n_vertices)
+    return norm, decimate(norm.apply(src.vertices), src.faces, config.working_vertices or src.n_vertices)
 
 
 def source_tissue(work: Decimation, config, message=lambda text: None) -> tuple[np.ndarray, dict]:
@@ -301,19 +311,20 @@ def prepare(source, target, skeleton, config, message=lambda text: None, before_
             compiled programs depend on is known then (:mod:`ncflow.match.ahead`).
     """
     src, tgt, skel = load_inputs(source, target, skeleton)
-    tgt_f, warnings = check_inputs(src, tgt, skel)
+    (src_c, src_r, src_note), (tgt_c, tgt_r, tgt_note) = intake(src, "source", config), intake(tgt, "target", config)
+    tgt_f, warnings = check_inputs(src_c, tgt_c, skel)
+    warnings = src_note + tgt_note + warnings
     for w in warnings:
         message(f"warning: {w}")
-    norm, src_v, work = working_source(src, config, message)
+    norm, work = working_source(src_c, config, message)
     skel_n = skel.with_positions(norm.apply(skel.positions))
-    tgt_v = norm.apply(tgt.vertices)
+    tgt_v = norm.apply(tgt_c.vertices)
     t0 = time.perf_counter()
     centroids, tissue_info = source_tissue(work, config, message)
     tissue_seconds = time.perf_counter() - t0
-    # the edge tables first: they name the file of a non-manifold mesh, which the overlap test would not
     source_topology = mesh_topology(work.faces, work.vertices.shape[0], name=src.name)
-    target_topology = mesh_topology(tgt_f, tgt.n_vertices, name=tgt.name)
-    weights = skinning_weight_mode(config, work.vertices, work.faces, tgt.vertices, tgt_f)
+    target_topology = mesh_topology(tgt_f, tgt_c.n_vertices, name=tgt.name)
+    weights = skinning_weight_mode(config, work.vertices, work.faces, tgt_c.vertices, tgt_f)
     if weights["mode"] == "start" and config.flow.skinning_weights == "auto":
         message(
             f"the target passes through itself ({weights['target_overlap']:.1%} of its area, the source "
@@ -324,9 +335,12 @@ def prepare(source, target, skeleton, config, message=lambda text: None, before_
         target=tgt,
         skeleton=skel,
         normalization=norm,
-        source_vertices=src_v,
+        source_vertices=norm.apply(src.vertices),
         working=work,
         target_vertices=tgt_v,
+        target_points=norm.apply(tgt.vertices),
+        source_repair=src_r,
+        target_repair=tgt_r,
         placement=Placement.identity(),
         skeleton_normalized=skel_n,
         source_topology=source_topology,
@@ -346,6 +360,7 @@ def prepare(source, target, skeleton, config, message=lambda text: None, before_
     return dataclasses.replace(
         problem,
         target_vertices=placement.apply(tgt_v),
+        target_points=placement.apply(problem.target_points),
         placement=placement,
         placement_seconds=t_place,
         pose_search=search,

@@ -253,7 +253,9 @@ def build_result(
     if not np.all(np.isfinite(frames_n)):
         raise TrainingError("the trained flow produced non-finite positions")
     pose, g_ep, g_tr, joints = final_pose(arrays, cfg, pose, bones, states, lam, cw, frame_times, programs.refit)
-    maps = correspondence_maps(src_v, source.faces, deformed_n, problem.target_vertices, target.faces)
+    src_r, tgt_r = problem.source_repair, problem.target_repair
+    maps = correspondence_maps(src_v, src_r.input_faces, deformed_n, problem.target_points, tgt_r.input_faces)
+    maps["map_face"] = src_r.face_origin[maps["map_face"]]  # the face of the source as given
     pivot = src_v.mean(axis=0)
     frames_n = move_back(problem.placement, frames_n, frame_times, pivot)
     joints = move_back(problem.placement, joints, frame_times, pivot)
@@ -298,6 +300,7 @@ def build_result(
             "mean_distance_flowed_source_to_target": float(np.mean(maps["dist_src_to_tgt"]) / norm.scale),
         },
         "compression": {f"{k[0]} sigma={k[1]:g}": v[2] for k, v in targets.items()},
+        "repair": {"source": dict(src_r.counts), "target": dict(tgt_r.counts)},
         "tissue": problem.tissue_info,
         "normalization": norm.to_dict(),
         "placement": problem.placement.to_dict(norm.scale),
