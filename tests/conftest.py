@@ -13,7 +13,7 @@ import os
 import re
 
 # JAX reads its handling of closed-over arrays when it is imported: `import ncflow` sets it for users
-# (ncflow.cache.SHARE_SETTINGS, checked equal in test_cache.py), but jaxtyping's hook imports JAX first
+# (ncflow.jit.cache.SHARE_SETTINGS, checked equal in test_cache.py), but jaxtyping's hook imports JAX first
 os.environ.setdefault("JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS", "true")
 os.environ.setdefault("JAX_EMBEDDED_CONSTANTS_MAX_BYTES", "0")
 

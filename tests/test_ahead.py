@@ -1,4 +1,4 @@
-"""Compiling ahead (:mod:`ncflow.match.ahead`): the stand-ins have the targets' shapes, every program
+"""Compiling ahead (:mod:`ncflow.jit.ahead`): the stand-ins have the targets' shapes, every program
 the thread compiles is compiled once (the main thread's first call finds it), and the results are
 those of a match without it, bit for bit.
 """
@@ -12,7 +12,7 @@ import pytest
 
 from ncflow.config import apply_overrides, preset, scale_steps
 from ncflow.geometry.mesh import Mesh
-from ncflow.match.ahead import CompileAhead
+from ncflow.jit.ahead import CompileAhead
 from ncflow.match.matcher import Matcher
 from ncflow.match.prepare import prepare
 from ncflow.match.stages import build_stages

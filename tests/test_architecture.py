@@ -4,8 +4,8 @@
    level, inside functions and classes, under ``if TYPE_CHECKING:`` and in ``try`` blocks — relative
    imports are resolved, and each import of another ncflow package must respect the layers
 
-       geometry (0) <- io (1) <- {measures, skeleton, flow, tissue, losses, optim, config} (2)
-                    <- {match, synthetic} (3) <- evaluate (4) <- reuse (5) <- cli (6)
+       geometry (0) <- io (1) <- jit (2) <- {measures, skeleton, flow, tissue, losses, optim, config} (3)
+                    <- {match, synthetic} (4) <- evaluate (5) <- {view, transfer, runs} (6) <- cli (7)
 
    A package imports only packages of lower layers; packages of one layer do not import each other except
    the few edges of ``SAME_LAYER_ALLOWED`` (each with its reason). ``synthetic`` imports only geometry, io,
@@ -36,20 +36,21 @@ PACKAGE = SRC / "ncflow"
 LAYERS = {
     "geometry": 0,
     "io": 1,
-    "cache": 1,
-    "buckets": 1,
-    "measures": 2,
-    "skeleton": 2,
-    "flow": 2,
-    "tissue": 2,
-    "losses": 2,
-    "optim": 2,
-    "config": 2,
-    "match": 3,
-    "synthetic": 3,
-    "evaluate": 4,
-    "reuse": 5,
-    "cli": 6,
+    "jit": 2,
+    "measures": 3,
+    "skeleton": 3,
+    "flow": 3,
+    "tissue": 3,
+    "losses": 3,
+    "optim": 3,
+    "config": 3,
+    "match": 4,
+    "synthetic": 4,
+    "evaluate": 5,
+    "view": 6,
+    "transfer": 6,
+    "runs": 6,
+    "cli": 7,
 }
 ROOT = "ncflow"  # the root package, ncflow/__init__.py
 UNRESTRICTED = {ROOT, "__main__"}  # the public surface and `python -m ncflow` may import anything
@@ -232,8 +233,8 @@ def test_scan_sees_function_local_and_type_checking_imports(tmp_path, monkeypatc
     verdicts = {(imp.line, imp.name): rule_violation(imp) for imp in collect_imports()}
     assert verdicts[6, None] is None and verdicts[6, "__version__"] is None  # errors, and the version
     assert "root package" in verdicts[6, "Mesh"]
-    assert "`geometry` (layer 0) imports `match` (layer 3)" in verdicts[3, None]
-    assert "`geometry` (layer 0) imports `cli` (layer 6)" in verdicts[5, None]
+    assert "`geometry` (layer 0) imports `match` (layer 4)" in verdicts[3, None]
+    assert "`geometry` (layer 0) imports `cli` (layer 7)" in verdicts[5, None]
     assert "`geometry` (layer 0) imports `io` (layer 1)" in verdicts[8, None]
 
 

@@ -21,15 +21,15 @@ import cloudpickle
 import numpy as np
 import pytest
 
-import ncflow.evaluate.batch as batch
+import ncflow.runs.batch as batch
 from ncflow.cli import main
 from ncflow.config import preset
 from ncflow.errors import InputError
 from ncflow.evaluate import ground_truth_from_vertex_map
-from ncflow.evaluate.cluster import open_client, worker_environment
-from ncflow.evaluate.engine import TEST_KILL_ENV, Task, run_tasks
 from ncflow.geometry.mesh import Mesh
 from ncflow.io.result import read_result
+from ncflow.runs.cluster import open_client, worker_environment
+from ncflow.runs.engine import TEST_KILL_ENV, Task, run_tasks
 from ncflow.skeleton import Skeleton
 from ncflow.synthetic.pairs import Pair, write_pairs
 from ncflow.synthetic.shapes import bend, capsule
@@ -148,7 +148,7 @@ def test_engine_retries_once_and_survives_dead_workers(tmp_path):
 
 
 def fake_match(job):
-    """Stands in for :func:`ncflow.evaluate.batch.match_pair`: writes metrics.json and the manifest,
+    """Stands in for :func:`ncflow.runs.batch.match_pair`: writes metrics.json and the manifest,
     fails on the pairs the marker files name."""
     name = job.pair.name
     if (Path(job.run_dir).parent / f"raise-{name}").exists():

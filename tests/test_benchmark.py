@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from matplotlib.image import imread
 
-import ncflow.evaluate.benchmark as bench
+import ncflow.runs.benchmark as bench
 from ncflow.cli import build_parser, main
 from ncflow.cli.options import config_from_args
 from ncflow.config import preset

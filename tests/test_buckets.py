@@ -1,4 +1,4 @@
-"""Size buckets (ncflow.buckets, geometry.topology.pad_topology): padded arrays represent the same
+"""Size buckets (ncflow.jit.buckets, geometry.topology.pad_topology): padded arrays represent the same
 measures, draws take real rows only, and a padded objective equals the unpadded one.
 """
 
@@ -7,10 +7,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ncflow.buckets import bucket, draw_rows, pad_rows
 from ncflow.flow import FlowField
 from ncflow.flow.integrate import flow_points, integrate
 from ncflow.geometry.topology import mesh_topology, pad_topology
+from ncflow.jit.buckets import bucket, draw_rows, pad_rows
 from ncflow.measures.normal_cycles import normal_cycle, normal_cycle_inner
 from ncflow.measures.varifold import varifold, varifold_inner
 from ncflow.synthetic.shapes import capsule, sphere

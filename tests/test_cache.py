@@ -11,7 +11,7 @@ SCRIPT = textwrap.dedent(
     """
     import sys
     import jax, jax.numpy as jnp
-    from ncflow.cache import configure_compilation_cache
+    from ncflow.jit.cache import configure_compilation_cache
     folder = configure_compilation_cache(sys.argv[1])
     print("FOLDER", folder)
     f = jax.jit(lambda x: jnp.sin(x) @ jnp.cos(x).T + jnp.tanh(x).sum())
@@ -68,7 +68,7 @@ def test_a_cache_folder_serves_from_another_path(tmp_path):
 def test_the_tests_run_with_the_jax_settings_users_get():
     import jax
 
-    from ncflow.cache import SHARE_SETTINGS, share_executables
+    from ncflow.jit.cache import SHARE_SETTINGS, share_executables
 
     assert all(os.environ.get(k) == v for k, v in SHARE_SETTINGS.items())
     assert share_executables() and jax.config.jax_embedded_constants_max_bytes == 0
@@ -76,7 +76,7 @@ def test_the_tests_run_with_the_jax_settings_users_get():
 
 @pytest.mark.parametrize("per_octave", [1, 2, 4])
 def test_bucket_is_the_smallest_allowed_size_not_below_n(per_octave):
-    from ncflow.buckets import bucket
+    from ncflow.jit.buckets import bucket
 
     # the allowed sizes, brute force: multiples of 2^k / per_octave within each octave [2^k, 2^(k+1)]
     allowed = sorted(
@@ -100,7 +100,7 @@ SHARED = textwrap.dedent(
     import os, sys
     import numpy as np
     import ncflow  # first, as a user would: compiled programs take their arrays as arguments
-    from ncflow.cache import share_executables
+    from ncflow.jit.cache import share_executables
     from ncflow.config import apply_overrides, preset, scale_steps
     from ncflow.geometry.mesh import Mesh
     from ncflow.match import Matcher
@@ -137,8 +137,8 @@ def test_a_second_character_of_similar_size_reuses_the_compiled_training_step(tm
     (so bone-weight widths) and targets: the second match finds its training step, its two output
     programs and its target's measures and compression in the compilation cache (issue 17's "pairs
     of similar size share compiled executables"), because the arrays are arguments of the programs
-    (:func:`ncflow.cache.share_executables`), not constants written into them, and the source and
-    the target are padded to their size buckets (:func:`ncflow.buckets.pad_mesh`).
+    (:func:`ncflow.jit.cache.share_executables`), not constants written into them, and the source and
+    the target are padded to their size buckets (:func:`ncflow.jit.buckets.pad_mesh`).
     """
     env = {k: v for k, v in os.environ.items() if not k.startswith(("NCFLOW_", "JAX_"))}
     env["NCFLOW_CACHE_DIR"] = str(tmp_path / "cache")
@@ -169,7 +169,7 @@ def test_jit_run_once_gives_what_filter_jit_gives():
     import jax
     import numpy as np
 
-    from ncflow.cache import jit_run_once
+    from ncflow.jit.cache import jit_run_once
 
     class Net(eqx.Module):
         mlp: eqx.nn.MLP
@@ -207,7 +207,7 @@ def test_jit_run_once_keeps_each_shapes_static_part_and_passes_its_options(monke
     import jax
     import jax.numpy as jnp
 
-    import ncflow.cache as cache
+    import ncflow.jit.cache as cache
 
     class Sized(eqx.Module):
         x: jax.Array

@@ -112,7 +112,7 @@ def test_rows_of_zero_weight_change_nothing(metric):
     """A mesh padded to its size buckets (degenerate faces and edges, boundary rows without
     neighbours: rows of zero weight) compresses to the same representatives, at their padded rows,
     with the same weights and reported error as the mesh itself."""
-    from ncflow.buckets import pad_mesh
+    from ncflow.jit.buckets import pad_mesh
 
     v, f = sphere(3)
     f = f[np.linalg.norm(v[f].mean(1) - [0.0, 0.0, 1.0], axis=1) > 0.5]  # a hole: boundary rows too

@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import ncflow.evaluate.benchmark as bench
 import ncflow.io.atomic as atomic
 import ncflow.io.result as export
 import ncflow.match.matcher as matcher_module
+import ncflow.runs.benchmark as bench
 import ncflow.synthetic.pairs as pairs_module
 from ncflow.cli import main
 from ncflow.config import preset

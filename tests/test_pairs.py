@@ -699,7 +699,7 @@ def test_mano_and_gltf_targets_turned_and_moved(mano_npz, tmp_path):
 
 
 def test_cli_moved_targets(built, tmp_path):
-    from ncflow.evaluate.benchmark import read_pairs_csv
+    from ncflow.runs.benchmark import read_pairs_csv
 
     out = tmp_path / "moved"
     args = ["make-pairs", str(out), "--kind", "hand", "--target-rotation", "90", "--target-translation", "0.3"]

@@ -264,7 +264,7 @@ def test_skinning_products_ask_for_full_float32_precision(dot_precisions):
 
 def test_the_compiled_field_does_not_depend_on_the_skeleton_positions_or_the_width():
     """Two skeletons of one shape with other joint positions and bone-weight widths lower to the same
-    program (their arrays are arguments: :func:`ncflow.cache.share_executables`, set for the tests
+    program (their arrays are arguments: :func:`ncflow.jit.cache.share_executables`, set for the tests
     as for users), so a second character reuses the first one's compiled executables; another
     tree of joints is another program (the comparison can fail).
     """

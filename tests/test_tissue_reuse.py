@@ -111,8 +111,8 @@ def test_prepare_uses_the_given_tissue_exactly(tmp_path, surface):
 
 def test_benchmark_tetrahedralises_each_source_once_for_all_methods(monkeypatch, tmp_path, surface):
     from ncflow.config import preset
-    from ncflow.evaluate.benchmark import PairSpec, RunTask, share_tissues
     from ncflow.io.meshes import save_mesh
+    from ncflow.runs.benchmark import PairSpec, RunTask, share_tissues
 
     monkeypatch.setenv("NCFLOW_CACHE_DIR", str(tmp_path / "cache"))
     calls = []

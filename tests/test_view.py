@@ -1,4 +1,4 @@
-"""``ncflow view``: the offline HTML page of a result (ncflow.reuse.view, cli/view.py).
+"""``ncflow view``: the offline HTML page of a result (ncflow.view.page, cli/view.py).
 
 The result folder is built without training: a generated humanoid pair (retriangulated target,
 exact ground truth), frames interpolated from the rest source to the posed source, and a map that
@@ -25,7 +25,9 @@ from ncflow.errors import InputError
 from ncflow.geometry.barycentric import round_to_vertex, surface_points
 from ncflow.geometry.mesh import face_areas
 from ncflow.io.result import read_result, write_result
-from ncflow.reuse.view import (
+from ncflow.synthetic.characters import make_character, pose_character
+from ncflow.synthetic.pairs import make_pair
+from ncflow.view.page import (
     NO_DATA_RGB,
     decode_array,
     dequantize_positions,
@@ -34,8 +36,6 @@ from ncflow.reuse.view import (
     quantize_positions,
     write_view,
 )
-from ncflow.synthetic.characters import make_character, pose_character
-from ncflow.synthetic.pairs import make_pair
 
 N_FRAMES = 5
 WRONG_EVERY = 7

@@ -1,10 +1,10 @@
 #!/bin/sh
 # Bundle the viewer (src/main.js + three.js) into the one minified script that the Python package
-# ships: ../src/ncflow/reuse/assets/viewer.js, plus three.js's licence beside it.
+# ships: ../src/ncflow/view/assets/viewer.js, plus three.js's licence beside it.
 # Run from this folder after `npm ci` (pinned versions in package-lock.json): `npm run build`.
 set -eu
 cd "$(dirname "$0")"
-ASSETS=../src/ncflow/reuse/assets
+ASSETS=../src/ncflow/view/assets
 mkdir -p "$ASSETS"
 ./node_modules/.bin/esbuild src/main.js \
   --bundle --minify --format=iife --target=es2020 --platform=browser \

@@ -6,7 +6,7 @@ A small public surface; everything else lives in the submodules (``ncflow.measur
 
 __version__ = "0.1.0"
 
-from ncflow.cache import share_executables
+from ncflow.jit.cache import share_executables
 
 share_executables()  # before anything imports JAX: compiled programs take their arrays as arguments
 
@@ -27,8 +27,9 @@ from ncflow.measures import (
     varifold,
     varifold_distance,
 )
-from ncflow.reuse import rig_result, transfer, transfer_skin_weights, write_view
 from ncflow.skeleton import Skeleton, load_skeleton, save_skeleton
+from ncflow.transfer import rig_result, transfer, transfer_skin_weights
+from ncflow.view import write_view
 
 __all__ = [
     "Config",

@@ -221,9 +221,9 @@ class Config:
     subset of the source's, :func:`ncflow.geometry.decimate.decimate`); the outputs and the
     correspondence are computed at full resolution with the trained field. ``none``: train on the
     full source. ``jit_cache`` (``auto`` | ``none`` | a folder): JAX's persistent compilation cache
-    (:mod:`ncflow.cache`; ``$NCFLOW_JIT_CACHE`` wins); it never changes results.
+    (:mod:`ncflow.jit.cache`; ``$NCFLOW_JIT_CACHE`` wins); it never changes results.
     ``compile_ahead``: compile the training step and the output programs in a background thread
-    while the target is placed and the pose searched (:mod:`ncflow.match.ahead`); it never changes
+    while the target is placed and the pose searched (:mod:`ncflow.jit.ahead`); it never changes
     results. ``setup_cache``: keep the placement and the pose search of a pair in the cache folder
     (``setup/``), keyed by the normalised inputs, the settings they depend on and ncflow's code, so
     a run on the same pair with other training settings reads them back

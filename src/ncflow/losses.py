@@ -42,8 +42,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, PRNGKeyArray
 
-from ncflow.buckets import draw_rows
 from ncflow.flow.integrate import time_grid
+from ncflow.jit.buckets import draw_rows
 from ncflow.measures.normal_cycles import safe_normalize
 
 DEFAULT_TISSUE_DELTA = 0.01
@@ -156,7 +156,7 @@ def sample_edges(
     key: PRNGKeyArray, edges: Int[ArrayLike, "E 2"], n: int, valid: Bool[ArrayLike, " E"] | None = None
 ) -> Int[Array, "n 2"]:
     """N of the E edges drawn uniformly without replacement (all E in random order if n ≥ E); with
-    ``valid`` (edges padded to a size bucket) only real edges (:func:`ncflow.buckets.draw_rows`).
+    ``valid`` (edges padded to a size bucket) only real edges (:func:`ncflow.jit.buckets.draw_rows`).
     """
     edges = jnp.asarray(edges)
     return edges[draw_rows(key, edges.shape[0], n, valid)]

@@ -52,12 +52,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
-from ncflow.buckets import draw_rows
-from ncflow.cache import cache_root
 from ncflow.errors import InputError
 from ncflow.geometry.topology import close_boundary
 from ncflow.io.atomic import atomic_path, computed_once
 from ncflow.io.files import read_npz_arrays
+from ncflow.jit.buckets import draw_rows
+from ncflow.jit.cache import cache_root
 
 DEFAULT_EDGE_LENGTH_FAC = 0.1
 """Ideal tet edge length relative to the bounding-box diagonal (the release uses 0.05; coarser here)."""
@@ -362,7 +362,7 @@ def sample_tissue(
     Keyed and deterministic given ``key``; jit-compatible (``n`` static). The rows keep the dtype of
     ``centroids``. When ``n`` ≥ K all K centroids are returned, in random order (shape (K, 3)).
     ``valid`` (K,) marks the real rows of centroids padded to a size bucket
-    (:func:`ncflow.buckets.bucket`): the draw is the first ``n`` real rows of the same
+    (:func:`ncflow.jit.buckets.bucket`): the draw is the first ``n`` real rows of the same
     permutation (so with every row real it is the draw without ``valid``); ``n`` must not exceed
     the number of real rows.
     """

@@ -1,6 +1,6 @@
-// The page script of `ncflow view` (bundled with three.js into src/ncflow/reuse/assets/viewer.js).
+// The page script of `ncflow view` (bundled with three.js into src/ncflow/view/assets/viewer.js).
 //
-// The HTML page written by ncflow.reuse.view holds the data in <script type="application/json"
+// The HTML page written by ncflow.view.page holds the data in <script type="application/json"
 // id="ncflow-data">: arrays as {dtype, shape, data: base64 little-endian}, positions quantised to
 // uint16 in the bounding box `bbox`. This script builds the page: three panels (source, flowed
 // source animated, target) or one overlay panel, a timeline, play/pause, skeleton and colour-mode
@@ -129,7 +129,7 @@ async function inflate(bytes) {
   return new Uint8Array(await new Response(stream).arrayBuffer());
 }
 
-// the inverse of ncflow.reuse.view.encode_array: base64, inflate, byte planes back, running sums
+// the inverse of ncflow.view.page.encode_array: base64, inflate, byte planes back, running sums
 async function decodeArray(spec) {
   const types = { uint8: Uint8Array, uint16: Uint16Array, uint32: Uint32Array, float32: Float32Array };
   const Type = types[spec.dtype];

@@ -33,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
     import sys
 
     from ncflow.cli.options import MiB, cluster_from_args, config_from_args, output_dir
-    from ncflow.evaluate.batch import read_pairs_csv, run_batch
+    from ncflow.runs.batch import read_pairs_csv, run_batch
 
     jobs, threads, scheduler = cluster_from_args(args)
     pairs = read_pairs_csv(args.pairs, ground_truth=False)  # one-line error on a bad csv before anything else

@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ncflow.cli.options import MiB, cluster_from_args, output_dir
     from ncflow.errors import InputError
-    from ncflow.evaluate.benchmark import read_pairs_csv, run_benchmark
+    from ncflow.runs.benchmark import read_pairs_csv, run_benchmark
 
     jobs, threads, scheduler = cluster_from_args(args)
     if args.ablations and (args.metric or args.interp or args.constraints):

@@ -37,8 +37,8 @@ def run(args: argparse.Namespace) -> int:
     from ncflow.evaluate import auc, geodesic_errors
     from ncflow.io.atomic import atomic_write_text, move_into_place, remove_tree, staging_dir
     from ncflow.match.matcher import Matcher
-    from ncflow.reuse.view import write_view
     from ncflow.synthetic.pairs import PAIR_FILES, make_pair, write_pair
+    from ncflow.view.page import write_view
 
     check_seed(args.pair_seed, "--pair-seed")
     cfg = config_from_args(args)
@@ -98,8 +98,8 @@ def _check_demo_extras(out) -> None:
     is refused.
     """
     from ncflow.errors import InputError
-    from ncflow.reuse.view import check_view_output
     from ncflow.synthetic.pairs import PAIR_FILES
+    from ncflow.view.page import check_view_output
 
     inputs, summary, page = out / "inputs", out / "demo_summary.json", out / "view.html"
     if page.exists() or page.is_symlink():

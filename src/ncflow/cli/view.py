@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ncflow.cli.options import MiB, check_int, gt_spec, output_file
-    from ncflow.reuse.view import (
+    from ncflow.view.page import (
         DEFAULT_MAX_DISPLAY_FRAMES,
         DEFAULT_MAX_DISPLAY_VERTICES,
         check_view_output,

@@ -1,5 +1,5 @@
-"""Evaluation: metrics, geodesics, scoring a result folder, plots, batches and benchmarks (on Dask), reports
-(docs/evaluation.md).
+"""Evaluation: metrics, geodesics, scoring a result folder, plots, aggregation and reports
+(docs/evaluation.md). Running many pairs (batches, benchmarks) is :mod:`ncflow.runs`.
 
 Also re-exports the ground-truth readers (:mod:`ncflow.io.ground_truth`) and the surface-point
 helpers (:mod:`ncflow.geometry.closest`, :mod:`ncflow.geometry.barycentric`) that the metrics take
@@ -62,33 +62,16 @@ __all__ = [
     "volume_change",
 ]
 
-# Reports (ncflow evaluate) and the benchmark runner (ncflow benchmark): appended exports.
-from ncflow.evaluate.batch import BatchResult, run_batch
-from ncflow.evaluate.benchmark import (
-    ABLATIONS,
-    BenchmarkResult,
-    PairSpec,
-    benchmark_methods,
-    read_pairs_csv,
-    run_benchmark,
-)
+# Scoring a result folder (ncflow evaluate) and the benchmark report: appended exports.
 from ncflow.evaluate.report import write_benchmark_report
 from ncflow.evaluate.score import Evaluation, evaluate_result, evaluation_text, write_evaluation
 from ncflow.io.arrays import json_safe
 
 __all__ += [
-    "ABLATIONS",
-    "BatchResult",
-    "BenchmarkResult",
     "Evaluation",
-    "PairSpec",
-    "benchmark_methods",
     "evaluate_result",
     "evaluation_text",
     "json_safe",
-    "read_pairs_csv",
-    "run_batch",
-    "run_benchmark",
     "write_benchmark_report",
     "write_evaluation",
 ]

@@ -31,7 +31,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from ncflow.buckets import pad_points
+from ncflow.jit.buckets import pad_points
 
 Field = Callable[[Float[Array, "N 3"], Float[Array, ""]], Float[Array, "N 3"]]
 
@@ -136,7 +136,7 @@ def flow_points(
     (Q, N, 3) at ``times`` when given. Identical to :func:`integrate` on the same points (each
     trajectory is independent), so the result is resolution-agnostic. ``chunk_size`` processes the
     points in chunks of that many rows (bounded memory for large meshes). Jitted; the points are
-    padded to a size bucket (:func:`ncflow.buckets.pad_points`, copies of the first point) so that
+    padded to a size bucket (:func:`ncflow.jit.buckets.pad_points`, copies of the first point) so that
     point sets of similar size share the compiled program.
     """
     points = jnp.asarray(points)

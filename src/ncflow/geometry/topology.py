@@ -112,7 +112,7 @@ def pad_topology(topology: Topology, n_faces: int, n_edges: int, n_boundary: int
     keeps none): faces (0, 0, 0) and edges (0, 0) are degenerate (zero area and length, so zero
     weight in every measure), padded edges have no incident faces and are not boundary edges, and
     padded boundary vertices (vertex 0) have no neighbours. Shapes padded to a size bucket
-    (:mod:`ncflow.buckets`) let meshes of similar size share compiled programs.
+    (:mod:`ncflow.jit.buckets`) let meshes of similar size share compiled programs.
     """
     t = topology
     n_boundary = t.boundary_vertices.size if n_boundary is None or not t.has_boundary else n_boundary

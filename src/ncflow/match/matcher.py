@@ -17,9 +17,9 @@ import time
 
 import jax
 
-from ncflow.cache import configure_compilation_cache
 from ncflow.config import Config, preset, validate_config
-from ncflow.match.ahead import CompileAhead
+from ncflow.jit.ahead import CompileAhead
+from ncflow.jit.cache import configure_compilation_cache
 from ncflow.match.objective import Arrays
 from ncflow.match.prepare import DTYPE, Problem, prepare, searches_pose
 from ncflow.match.progress import Progress
@@ -68,7 +68,7 @@ class Matcher:
     def _programs(self, problem: Problem) -> None:
         """The problem's arrays and compiled programs, built before the placement and the pose search
         (:func:`~ncflow.match.prepare.prepare`'s ``before_search``), and with ``compile_ahead`` a
-        thread that compiles them meanwhile (:mod:`ncflow.match.ahead`).
+        thread that compiles them meanwhile (:mod:`ncflow.jit.ahead`).
         """
         cfg = self.config
         self.arrays = Arrays.from_problem(problem)

@@ -31,9 +31,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
-from ncflow.buckets import bucket, pad_mesh
 from ncflow.flow import GSONet, integrate, time_grid
 from ncflow.geometry.topology import Topology
+from ncflow.jit.buckets import bucket, pad_mesh
 from ncflow.losses import (
     bone_constraints,
     edge_points,
@@ -109,13 +109,13 @@ class Settings:
 @dataclasses.dataclass(frozen=True)
 class Arrays:
     """The problem's constant arrays in the training dtype (closed over by the jitted step, as
-    arguments of its executable: :func:`ncflow.cache.share_executables`).
+    arguments of its executable: :func:`ncflow.jit.cache.share_executables`).
 
-    Padded to size buckets (:mod:`ncflow.buckets`) so that sources of similar size share the
+    Padded to size buckets (:mod:`ncflow.jit.buckets`) so that sources of similar size share the
     compiled step: the working source's vertices (copies of vertex 0 appended; the flow moves each
     point on its own), its faces, edges and boundary vertices
     (:func:`~ncflow.geometry.topology.pad_topology`: rows of zero weight in every measure) to
-    :data:`ncflow.buckets.MESH_PER_OCTAVE` sizes per doubling, and the tissue centroids (whose count varies from
+    :data:`ncflow.jit.buckets.MESH_PER_OCTAVE` sizes per doubling, and the tissue centroids (whose count varies from
     one tetrahedralisation to the next) to the next power of two. ``n_vertices`` and ``n_edges``
     count the real rows, ``edge_valid`` and ``centroid_valid`` mark them.
     """

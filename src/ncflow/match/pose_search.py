@@ -107,7 +107,7 @@ def best_distinct(
 def _host(pose: Pose) -> Pose:
     """The pose in NumPy: the bookkeeping between the compiled programs (picking, stacking poses) runs
     on the host. With jax.numpy each operation and shape is one more program to compile, and on a cold
-    run each waits seconds behind the training step compiling in its thread (:mod:`ncflow.match.ahead`).
+    run each waits seconds behind the training step compiling in its thread (:mod:`ncflow.jit.ahead`).
     """
     return jax.tree.map(np.asarray, pose)
 

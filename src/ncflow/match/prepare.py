@@ -22,7 +22,6 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Float
 
-from ncflow.cache import cache_root
 from ncflow.geometry.decimate import Decimation, decimate
 from ncflow.geometry.mesh import Mesh
 from ncflow.geometry.normalize import Normalization, fit_normalization
@@ -31,6 +30,7 @@ from ncflow.geometry.repair import Repair
 from ncflow.geometry.topology import Topology, mesh_topology
 from ncflow.io.atomic import computed_once
 from ncflow.io.files import read_npz_arrays
+from ncflow.jit.cache import cache_root
 from ncflow.match.inputs import check_inputs, intake, load_inputs
 from ncflow.match.placement import Placement, place_target, placement_candidates
 from ncflow.match.pose_search import PoseSearchResult, search_poses
@@ -308,7 +308,7 @@ def prepare(source, target, skeleton, config, message=lambda text: None, before_
         message: called with one-line progress notes (warnings, tetrahedralisation).
         before_search: called with the problem as it stands before the placement and the pose
             search (the target not yet placed, ``placement`` the identity, no pose): everything the
-            compiled programs depend on is known then (:mod:`ncflow.match.ahead`).
+            compiled programs depend on is known then (:mod:`ncflow.jit.ahead`).
     """
     src, tgt, skel = load_inputs(source, target, skeleton)
     (src_c, src_r, src_note), (tgt_c, tgt_r, tgt_note) = intake(src, "source", config), intake(tgt, "target", config)

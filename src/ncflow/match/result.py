@@ -21,12 +21,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from ncflow import __version__
-from ncflow.buckets import pad_points
-from ncflow.cache import jit_run_once
 from ncflow.config import config_to_dict
 from ncflow.flow import flow_points, hermite, integrate, time_grid
 from ncflow.geometry.mesh import Mesh
 from ncflow.geometry.normalize import Normalization
+from ncflow.jit.buckets import pad_points
+from ncflow.jit.cache import jit_run_once
 from ncflow.losses import bone_constraints
 from ncflow.match.correspondence import correspondence_maps
 from ncflow.match.placement import Placement
@@ -117,7 +117,7 @@ def output_flow_program(skeleton, radii, n_times: int):
     """The compiled program of :func:`output_motion`: ``(field, points, times, key)`` → the frames
     (Q, N, 3) of ``points`` at ``times``, FINAL_BONE_SAMPLES fresh samples per bone (B, n, 3) and
     their grid states (T, B, n, 3). Built once per problem, so that it can be compiled ahead
-    (:mod:`ncflow.match.ahead`).
+    (:mod:`ncflow.jit.ahead`).
     """
 
     @eqx.filter_jit
@@ -134,7 +134,7 @@ def output_motion(field, source: np.ndarray, frame_times: np.ndarray, n_times: i
     """The trained flow of everything the outputs need, in one compiled program: the source's
     frames (Q, V, 3) at ``frame_times`` (cubic Hermite between grid states, exact at grid times) and
     FINAL_BONE_SAMPLES fresh samples per bone (B, n, 3) with their grid states (T, B, n, 3). The
-    source is padded to a size bucket (:func:`ncflow.buckets.pad_points`, copies of its first vertex;
+    source is padded to a size bucket (:func:`ncflow.jit.buckets.pad_points`, copies of its first vertex;
     each trajectory is independent) so that sources of similar size share the program; the bone
     samples ride along with the source (flowing them separately compiled the flow twice).
     ``program``: :func:`output_flow_program` of (skeleton, radii, n_times), when already built.

@@ -1,7 +1,7 @@
 """Target measures per length scale: the target's Varifold / Normal Cycle, compressed once per
 (metric, σ, σ_n) when larger than ``config.compress`` (Algorithm 2; DESIGN.md "Compression"), with
 its self-energy ⟨Y, Y⟩ that normalises the data term. The target mesh is padded to its size
-buckets first (:func:`ncflow.buckets.pad_mesh`: rows of zero weight in its measures), so targets of
+buckets first (:func:`ncflow.jit.buckets.pad_mesh`: rows of zero weight in its measures), so targets of
 similar size share the compiled programs of their measures, their compression and the training step.
 """
 
@@ -13,8 +13,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ncflow.buckets import pad_mesh
 from ncflow.errors import InputError
+from ncflow.jit.buckets import pad_mesh
 from ncflow.match.prepare import DTYPE, Problem
 from ncflow.match.stages import Stage
 from ncflow.measures.registry import get_metric
@@ -66,7 +66,7 @@ def target_stand_ins(problem: Problem, stages: list[Stage], config) -> dict[Targ
     """What :func:`target_measures` returns, in shape only: zero measures of the rows the target's
     would have (``compress``, or its size bucket) and ⟨Y, Y⟩ = 1, without placing or compressing
     anything — the target's size does not change when it is placed. For compiling the training
-    step ahead (:mod:`ncflow.match.ahead`).
+    step ahead (:mod:`ncflow.jit.ahead`).
     """
     out: dict[TargetKey, tuple[Any, float, dict]] = {}
     shapes = {}
@@ -82,7 +82,7 @@ def target_stand_ins(problem: Problem, stages: list[Stage], config) -> dict[Targ
 
 def _represented(problem: Problem, metric, padded: bool):
     """The shapes of the target's measure in ``metric`` (nothing computed), of the mesh padded to its
-    size buckets (:func:`ncflow.buckets.pad_mesh`) or as it is.
+    size buckets (:func:`ncflow.jit.buckets.pad_mesh`) or as it is.
     """
 
     def measure(v):

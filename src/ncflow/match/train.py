@@ -21,9 +21,9 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from ncflow.cache import jit_run_once
 from ncflow.errors import NcflowError
 from ncflow.flow import GSONet, SkinnedField, make_flow_field
+from ncflow.jit.cache import jit_run_once
 from ncflow.match.guard import DivergenceGuard
 from ncflow.match.objective import Arrays, Params, Settings, objective
 from ncflow.match.prepare import DTYPE, skinning_width
@@ -123,7 +123,7 @@ def make_step(arrays: Arrays, settings: Settings, optimizer: optax.GradientTrans
 @dataclasses.dataclass(frozen=True)
 class TrainingPrograms:
     """What the training compiles, built once per problem so that it can be compiled ahead
-    (:mod:`ncflow.match.ahead`) and then called: the parameter initialisation ``init(key, pose)``,
+    (:mod:`ncflow.jit.ahead`) and then called: the parameter initialisation ``init(key, pose)``,
     the optimiser, the objective's settings and the jitted step (:func:`make_step`; one for every
     stage, the metric chosen by the traced index into ``settings.metrics``).
     """

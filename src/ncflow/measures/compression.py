@@ -28,8 +28,8 @@ import numpy as np
 import scipy.linalg
 from jaxtyping import Array, Float
 
-from ncflow.buckets import pad_rows
 from ncflow.errors import InputError
+from ncflow.jit.buckets import pad_rows
 from ncflow.measures.kernels import kernel_matvec, kernel_self_sum
 from ncflow.measures.normal_cycles import NormalCycle, _nc_features
 from ncflow.measures.varifold import Varifold, varifold_features
@@ -110,7 +110,7 @@ def leverage_scores(
 
 def carrying_mass(w: Float[Array, "N K"]) -> np.ndarray:
     """Indices of the rows of a measure's weights (N, K) that are not all zero: the atoms the
-    measure has. A mesh padded to a size bucket (:func:`ncflow.buckets.pad_mesh`) adds rows of zero
+    measure has. A mesh padded to a size bucket (:func:`ncflow.jit.buckets.pad_mesh`) adds rows of zero
     weight, which no kernel sum sees and compression does not pick.
     """
     return np.flatnonzero(np.any(np.asarray(w) != 0, axis=1))

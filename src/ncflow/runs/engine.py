@@ -1,14 +1,14 @@
 """The task engine of ``ncflow batch`` and ``ncflow benchmark``: tasks on a Dask cluster, retried once.
 
 :func:`run_tasks` submits each :class:`Task` to the cluster of a :class:`distributed.Client`
-(:func:`ncflow.evaluate.cluster.open_client`) and waits for them in completion order, with a progress
+(:func:`ncflow.runs.cluster.open_client`) and waits for them in completion order, with a progress
 bar over the tasks (tqdm, on a terminal):
 
 * a task that raises, or whose worker process dies (a segfault, the out-of-memory killer, a kill),
   is submitted once more (``retries=1``) and then recorded as failed while the others go on; an
   :class:`~ncflow.errors.NcflowError` (bad input, a result folder that cannot be written) is not
   retried: it would fail the same way. The retry is the engine's own (the local scheduler gives up
-  on a task at the first worker death, :mod:`ncflow.evaluate.cluster`), so ``attempts`` counts
+  on a task at the first worker death, :mod:`ncflow.runs.cluster`), so ``attempts`` counts
   submissions the same way for an exception and for a crash;
 * at most as many tasks are in flight as the cluster has worker threads (``throttle``, the local
   cluster), so a worker never holds a task queued behind the one it runs, which its death would
@@ -124,7 +124,7 @@ def run_tasks(
     """Run the tasks on the cluster of ``client``; retry each failed one ``retries`` times.
 
     Args:
-        client: a :class:`distributed.Client` (:func:`ncflow.evaluate.cluster.open_client`).
+        client: a :class:`distributed.Client` (:func:`ncflow.runs.cluster.open_client`).
         tasks: the tasks (unique keys).
         retries: further submissions of a task that raised (not an NcflowError) or whose worker died.
         on_done: called in this process with each final outcome, in completion order.

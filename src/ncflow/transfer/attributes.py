@@ -10,8 +10,8 @@ Every target vertex j corresponds to the point of the rest source surface given 
   face's three corner labels (``"majority"``), else the corner of largest weight (``"nearest"``);
 * colours (PLY ``red green blue [alpha]``): barycentric, clipped to the range, written as bytes;
 * texture coordinates (OBJ with ``vt``, face-varying, with seams):
-  :func:`ncflow.reuse.uv.transfer_uv`, one chart per target point and no target triangle across a seam;
-* skin weights: :func:`ncflow.reuse.weights.transfer_skin_weights` (barycentric carry, clamped,
+  :func:`ncflow.transfer.uv.transfer_uv`, one chart per target point and no target triangle across a seam;
+* skin weights: :func:`ncflow.transfer.weights.transfer_skin_weights` (barycentric carry, clamped,
   renormalised, unreliable vertices inpainted);
 * landmarks (JSON: vertex ids or points): :func:`carry_landmarks`, moved with the flowed source
   and projected onto the target surface.
@@ -39,7 +39,7 @@ from ncflow.io.obj_uv import read_obj_uv, write_obj_uv
 from ncflow.io.ply_properties import PLY_TYPES, PlyVertexProperties, read_ply_vertex_properties, write_ply_properties
 from ncflow.io.result import CONTRACT_FILES, read_result, result_target
 from ncflow.io.vertex_arrays import read_vertex_array, write_vertex_array
-from ncflow.reuse.uv import UVTransfer, transfer_uv
+from ncflow.transfer.uv import UVTransfer, transfer_uv
 
 __all__ = [
     "KINDS",
@@ -331,7 +331,7 @@ def _array_transfer(kind, attributes, n_source, res, result_dir, rule, max_dista
             "use --kind values for other arrays",
             attributes,
         )
-    from ncflow.reuse.weights import transfer_skin_weights
+    from ncflow.transfer.weights import transfer_skin_weights
 
     tv, tf = result_target(res, None, result_dir)
     weights, reliable = transfer_skin_weights(

@@ -28,7 +28,7 @@ Workers of an existing cluster are configured where they are started (see docs/b
 Failures. The local scheduler gives up on a task at the first worker death
 (``distributed.scheduler.allowed-failures = 0``) and hands out one task per worker at a time
 (``worker-saturation = 1.0``, so a dying worker takes no queued task down with it); the retry is the
-runner's own (:func:`ncflow.evaluate.batch.run_tasks`), so "retried once" means the same for an
+runner's own (:func:`ncflow.runs.batch.run_tasks`), so "retried once" means the same for an
 exception, a crash and a killed worker, on any cluster.
 
 Dask's log messages are silenced (``verbose`` shows them); the dashboard is started on request

@@ -9,7 +9,7 @@ of docs/evaluation.md.
 
 Everything is inside the one file: the page script is three.js and the viewer bundled at build
 time (``viewer/`` at the repository root, esbuild, shipped prebuilt as package data in
-``ncflow/reuse/assets/viewer.js``; users need no node), the data are typed arrays in a
+``ncflow/view/assets/viewer.js``; users need no node), the data are typed arrays in a
 ``<script type="application/json">`` element (positions quantised to uint16 in their bounding box,
 frames delta-coded, bytes deflated and base64-encoded: :func:`encode_array`), and a
 Content-Security-Policy forbids every network request. Meshes above the
@@ -315,7 +315,7 @@ def view_data(
 def viewer_script() -> str:
     """The bundled page script (three.js + the viewer), shipped as package data."""
     try:
-        return resources.files("ncflow.reuse").joinpath("assets/viewer.js").read_text(encoding="ascii")
+        return resources.files("ncflow.view").joinpath("assets/viewer.js").read_text(encoding="ascii")
     except (FileNotFoundError, OSError) as exc:  # an installation without its package data
         raise NcflowError(
             f"the viewer script is missing from the installation ({exc}); reinstall ncflow "

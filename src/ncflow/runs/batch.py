@@ -1,15 +1,15 @@
 """``ncflow batch``: match every pair of a csv on Dask; manifests and shared tissues for it and the benchmark.
 
 ``ncflow batch PAIRS.csv --out OUT`` matches every row of the csv (``name, source, target, skeleton``;
-other columns ignored, :func:`ncflow.evaluate.pairs_csv.read_pairs_csv`) into ``OUT/<name>/``, no
+other columns ignored, :func:`ncflow.runs.pairs_csv.read_pairs_csv`) into ``OUT/<name>/``, no
 ground truth needed. Layout of ``OUT``::
 
     <name>/                 the output contract of ncflow match, plus run_manifest.json
     tissue/<key>.npz        the soft tissue of each distinct source, shared by its pairs
     batch.json              the summary (always written, also when every pair failed or on Ctrl-C)
 
-Each pair is a task of the engine (:func:`ncflow.evaluate.engine.run_tasks`) on a Dask cluster
-(:func:`ncflow.evaluate.cluster.open_client`: a local cluster of worker processes, or an existing
+Each pair is a task of the engine (:func:`ncflow.runs.engine.run_tasks`) on a Dask cluster
+(:func:`ncflow.runs.cluster.open_client`: a local cluster of worker processes, or an existing
 one): a pair that raises or whose worker dies is retried once, then recorded as failed, and the
 others go on.
 
@@ -27,7 +27,7 @@ the same tetrahedra (fTetWild is not deterministic). A source whose tissue fails
 pairs then fail (or succeed) on their own.
 
 Determinism: every pair uses the configuration's seed, whatever worker runs it and in whatever order,
-and local workers run JAX on a fixed number of threads whatever ``--jobs`` (:mod:`ncflow.evaluate.cluster`),
+and local workers run JAX on a fixed number of threads whatever ``--jobs`` (:mod:`ncflow.runs.cluster`),
 so ``--jobs 1`` and ``--jobs 2`` give byte-identical result files (``metrics.json`` differs in its timings).
 """
 
@@ -44,10 +44,10 @@ from pathlib import Path
 
 from ncflow.config import RESULT_NEUTRAL, Config, config_to_dict
 from ncflow.errors import InputError
-from ncflow.evaluate.cluster import open_client
-from ncflow.evaluate.engine import RETRIES, Outcome, Task, error_line, run_tasks
-from ncflow.evaluate.pairs_csv import PairSpec, read_pairs_csv
 from ncflow.io.atomic import atomic_write_text
+from ncflow.runs.cluster import open_client
+from ncflow.runs.engine import RETRIES, Outcome, Task, error_line, run_tasks
+from ncflow.runs.pairs_csv import PairSpec, read_pairs_csv
 
 MANIFEST_FILE = "run_manifest.json"
 SUMMARY_FILE = "batch.json"
@@ -175,7 +175,7 @@ def share_tissues(
     ``tasks`` are dataclasses with ``pair`` (a :class:`PairSpec`) and ``config``; returned with
     ``config.tissue.file`` set to ``out/tissue/<key>.npz`` (:func:`tissue_key`) where a tissue is
     used. With ``client`` the tissues are computed as tasks on its cluster (in parallel, retried like
-    pairs; ``throttle`` as in :func:`~ncflow.evaluate.engine.run_tasks`), else in this process. A
+    pairs; ``throttle`` as in :func:`~ncflow.runs.engine.run_tasks`), else in this process. A
     source whose tissue fails is left unshared (logged).
     """
     jobs: dict[str, TissueJob] = {}
@@ -312,7 +312,7 @@ def run_batch(
         out_dir: the batch folder (created; reused to resume).
         config: the configuration of every match (its seed for every pair).
         jobs: local worker processes (0: in this process); ignored with ``scheduler``.
-        threads: JAX threads of each local worker (:mod:`ncflow.evaluate.cluster`).
+        threads: JAX threads of each local worker (:mod:`ncflow.runs.cluster`).
         scheduler: address or scheduler file of an existing Dask cluster.
         dashboard: start the local cluster's dashboard and print its address.
         verbose: let Dask's log messages through.

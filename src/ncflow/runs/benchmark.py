@@ -4,7 +4,7 @@ Input: a csv with columns ``name, source, target, skeleton, gt`` and optionally 
 ``dataset`` (the file :func:`ncflow.synthetic.pairs.write_pairs` / ``ncflow make-pairs`` writes);
 paths are relative to the csv. ``gt`` is ``identity``, a ground-truth file, or two template
 ``.vts`` files separated by ``;`` (with ``gt_format`` ``template``). Every row is checked (columns,
-files, names) before anything runs (:func:`ncflow.evaluate.pairs_csv.read_pairs_csv`).
+files, names) before anything runs (:func:`ncflow.runs.pairs_csv.read_pairs_csv`).
 
 Layout of ``OUT``::
 
@@ -16,14 +16,14 @@ Layout of ``OUT``::
     report.json, report.md, curves_<dataset>.png
 
 Execution: every run (method × pair) is a task on Dask, through the engine of ``ncflow batch``
-(:func:`ncflow.evaluate.batch.run_tasks`): a local cluster of ``jobs`` worker processes, or an
+(:func:`ncflow.runs.batch.run_tasks`): a local cluster of ``jobs`` worker processes, or an
 existing cluster (``scheduler``). A run that raises or whose worker process dies is retried once,
 then recorded as failed in the report while the others go on; running the command again retries
 it. Each distinct source is tetrahedralised once before the runs fan out
-(:func:`ncflow.evaluate.batch.share_tissues`), so the methods and ``--jobs`` see the same tissue.
+(:func:`ncflow.runs.batch.share_tissues`), so the methods and ``--jobs`` see the same tissue.
 
 Manifests: every run folder holds ``run_manifest.json`` (:func:`run_manifest`): the ``match`` part
-(:func:`ncflow.evaluate.batch.match_manifest`: SHA-256 of source, target and skeleton, the ncflow
+(:func:`ncflow.runs.batch.match_manifest`: SHA-256 of source, target and skeleton, the ncflow
 version and the method's configuration as far as it changes a result), written after the match,
 and the ``evaluation`` part (SHA-256 of the ground truth, its format, the geodesic method), added
 after the evaluation.
@@ -53,13 +53,13 @@ from pathlib import Path
 from ncflow.config import RESULT_NEUTRAL, Config, config_to_dict, with_metric
 from ncflow.errors import InputError
 from ncflow.evaluate.aggregate import run_row
-from ncflow.evaluate.batch import MANIFEST_FILE, file_sha256, match_manifest, read_manifest, share_tissues
-from ncflow.evaluate.cluster import open_client
-from ncflow.evaluate.engine import Outcome, Task, run_tasks
-from ncflow.evaluate.pairs_csv import GT_COLUMNS, OPTIONAL_COLUMNS, PAIR_COLUMNS, PairSpec, read_pairs_csv
 from ncflow.evaluate.report import write_benchmark_report
 from ncflow.evaluate.score import EVALUATION_FILE, EVALUATION_PLOTS
 from ncflow.io.atomic import atomic_write_text
+from ncflow.runs.batch import MANIFEST_FILE, file_sha256, match_manifest, read_manifest, share_tissues
+from ncflow.runs.cluster import open_client
+from ncflow.runs.engine import Outcome, Task, run_tasks
+from ncflow.runs.pairs_csv import GT_COLUMNS, OPTIONAL_COLUMNS, PAIR_COLUMNS, PairSpec, read_pairs_csv
 
 __all__ = [
     "ABLATIONS",
@@ -168,7 +168,7 @@ def _evaluation_done(run_dir: Path) -> bool:
 def run_manifest(task: RunTask) -> dict:
     """What a run is made from: ``{"format": 1, "match": {...}, "evaluation": {...}}``.
 
-    ``match``: :func:`ncflow.evaluate.batch.match_manifest` (SHA-256 of source, target and skeleton,
+    ``match``: :func:`ncflow.runs.batch.match_manifest` (SHA-256 of source, target and skeleton,
     the ncflow version, the method's configuration). ``evaluation``: SHA-256 of the ground-truth
     file(s) (``identity`` has none), the ground-truth format and the geodesic method (plus the match
     part's inputs, through the run). Equal manifests mean a finished run can be reused.
@@ -339,7 +339,7 @@ def _execute(
 ) -> list[dict]:
     """Run the tasks on Dask (``client``, else a local cluster of ``jobs`` worker processes); log each
     as it ends. A run that raises or whose worker process dies is retried once, then recorded as
-    failed (:func:`ncflow.evaluate.batch.run_tasks`); the others go on.
+    failed (:func:`ncflow.runs.batch.run_tasks`); the others go on.
 
     ``outcomes``: a list the outcome dicts are appended to as they come (kept on Ctrl-C).
     """
@@ -423,9 +423,9 @@ def run_benchmark(
         config: the configuration (the ``ncflow`` method, or the base of the ablation variants).
         ablations: run the Table 1 variants (:data:`ABLATIONS`) instead of one method.
         jobs: local worker processes (0: in this process); ignored with ``scheduler``.
-        threads: JAX threads of each local worker (:mod:`ncflow.evaluate.cluster`).
+        threads: JAX threads of each local worker (:mod:`ncflow.runs.cluster`).
         scheduler: address or scheduler file of an existing Dask cluster
-            (:func:`ncflow.evaluate.cluster.open_client`).
+            (:func:`ncflow.runs.cluster.open_client`).
         dashboard: start the local cluster's dashboard and print its address.
         verbose: let Dask's log messages through.
         progress: a progress bar over the runs (on a terminal).

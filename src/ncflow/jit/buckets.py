@@ -6,7 +6,7 @@ input to the next — the working source's vertices, edges and faces, the tissue
 points a trained flow moves — are padded to :func:`bucket` sizes, with rows that represent nothing
 (:func:`ncflow.geometry.topology.pad_topology`: degenerate edges and faces, of zero length and
 area) or that random draws step around (:func:`draw_rows`). The cached executables of
-:mod:`ncflow.cache` then serve every input whose sizes fall in the same buckets.
+:mod:`ncflow.jit.cache` then serve every input whose sizes fall in the same buckets.
 """
 
 from __future__ import annotations
