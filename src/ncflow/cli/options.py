@@ -229,38 +229,27 @@ def add_config_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def config_from_args(args: argparse.Namespace):
-    """The effective configuration: preset → file → flags → --set overrides."""
-    import dataclasses
-
-    from ncflow.config import apply_overrides, load_config, scale_steps, validate_config, with_metric
+    """The effective configuration: preset → file → flags → --set overrides → --steps."""
+    from ncflow.config import apply_overrides, load_config, with_options
 
     check_seed(args.seed)
     check_int(args.steps, "--steps", 1, 10**8)
     check_int(args.frames, "--frames", 2, 10**6)
+    check_number(getattr(args, "weld", None), "--weld", lo=0.0, hi=0.01)
     cfg = load_config(args.config, args.preset)
-    if args.seed is not None:
-        cfg = dataclasses.replace(cfg, seed=args.seed)
-    if args.frames is not None:
-        cfg = dataclasses.replace(cfg, frames=args.frames)
-    if args.metric:
-        cfg = with_metric(cfg, args.metric)
-    if args.interp:
-        cfg = dataclasses.replace(cfg, interp=args.interp)
-    if args.constraints:
-        cfg = dataclasses.replace(cfg, constraints=dataclasses.replace(cfg.constraints, mode=args.constraints))
-    if args.optimizer:
-        cfg = dataclasses.replace(cfg, optimizer=args.optimizer)
-    if args.div_free:
-        cfg = dataclasses.replace(cfg, flow=dataclasses.replace(cfg.flow, div_free=True, skinning=False))
-    if getattr(args, "weld", None) is not None:
-        check_number(args.weld, "--weld", lo=0.0, hi=0.01)
-        cfg = dataclasses.replace(cfg, repair=dataclasses.replace(cfg.repair, weld_tolerance=args.weld))
-    if getattr(args, "tissue", None):
-        cfg = dataclasses.replace(cfg, tissue=dataclasses.replace(cfg.tissue, file=str(args.tissue)))
-    cfg = apply_overrides(cfg, args.set)
-    if args.steps is not None:
-        cfg = scale_steps(cfg, args.steps)
-    return validate_config(cfg)
+    flags = {
+        "seed": args.seed,
+        "frames": args.frames,
+        "metric": args.metric,
+        "interp": args.interp,
+        "constraints": args.constraints,
+        "optimizer": args.optimizer,
+        "div_free": args.div_free,
+        "weld": getattr(args, "weld", None),
+        "tissue_file": getattr(args, "tissue", None),
+    }
+    cfg = apply_overrides(with_options(cfg, **flags), args.set)
+    return with_options(cfg, steps=args.steps)
 
 
 def add_cluster_arguments(p: argparse.ArgumentParser) -> None:

@@ -50,7 +50,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from ncflow.config import RESULT_NEUTRAL, Config, config_to_dict, with_metric
+from ncflow.config import RESULT_NEUTRAL, Config, ablation_config, config_to_dict
 from ncflow.errors import InputError
 from ncflow.evaluate.aggregate import run_row
 from ncflow.evaluate.report import write_benchmark_report
@@ -123,13 +123,6 @@ class Method:
             "description": self.description,
             "config": config_to_dict(self.config),
         }
-
-
-def ablation_config(config: Config, metric: str, interp: str, constraints: str) -> Config:
-    """``config`` with its data term(s), skeleton interpolation and bone-constraint mode replaced."""
-    cfg = with_metric(config, metric)
-    cfg = dataclasses.replace(cfg, interp=interp)
-    return dataclasses.replace(cfg, constraints=dataclasses.replace(cfg.constraints, mode=constraints))
 
 
 def benchmark_methods(config: Config, ablations: bool = False) -> list[Method]:
