@@ -333,7 +333,7 @@ def test_killed_worker_is_one_failure_and_the_rerun_retries_only_it(real_batch, 
     for name in ("bend_30", "bend_80"):
         r = read_result(out / name)
         assert (rows[name]["status"], rows[name]["attempts"], rows[name]["steps"]) == ("ok", 1, 2)
-        assert r["frames"].shape[0] == 2 and np.all(np.isfinite(r["deformed_source"]))
+        assert r.frames.shape[0] == 2 and np.all(np.isfinite(r.deformed_source))
         assert batch.read_manifest(out / name)["match"]["target_sha256"] == batch.file_sha256(rows[name]["target"])
     # the same command (the worker still dies on bend_50): only bend_50 is tried again, twice
     before = {n: (out / n / "deformed_source.ply").stat().st_mtime_ns for n in ("bend_30", "bend_80")}

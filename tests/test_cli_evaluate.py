@@ -13,7 +13,7 @@ from ncflow.evaluate.plots import EVALUATION_PLOTS
 from ncflow.evaluate.score import EVALUATION_FILE
 from ncflow.io.arrays import json_safe
 from ncflow.io.meshes import save_mesh
-from ncflow.io.result import write_result
+from ncflow.io.result import ResultFolder, write_result
 from ncflow.match.correspondence import correspondence_maps
 from ncflow.synthetic.shapes import capsule
 
@@ -53,9 +53,9 @@ def case(tmp_path_factory):
     save_mesh(d / "target.ply", target, fs)
     maps = correspondence_maps(vs, fs, target, target, fs)
     common = {"deformed_source": target, "source_faces": fs, "frames": frames, "frame_times": times}
-    write_result(d / "perfect", maps=maps, metrics={"constraints": CONSTRAINTS}, **common)
+    write_result(d / "perfect", ResultFolder(maps=maps, metrics={"constraints": CONSTRAINTS}, **common))
     shifted = dict(maps, map_face=np.roll(maps["map_face"], 7), map_bary=np.roll(maps["map_bary"], 7, axis=0))
-    write_result(d / "shifted", maps=shifted, **common)
+    write_result(d / "shifted", ResultFolder(maps=shifted, **common))
     return d, vs, fs
 
 
@@ -227,11 +227,13 @@ def test_flat_sheet_volume_change_written_as_null_and_reported(tmp_path, capsys)
     maps = correspondence_maps(vs, fs, target, target, fs)
     write_result(
         tmp_path / "res",
-        deformed_source=target,
-        source_faces=fs,
-        maps=maps,
-        frames=np.stack([vs, target]),
-        frame_times=np.array([0.0, 1.0]),
+        ResultFolder(
+            deformed_source=target,
+            source_faces=fs,
+            maps=maps,
+            frames=np.stack([vs, target]),
+            frame_times=np.array([0.0, 1.0]),
+        ),
     )
     assert (
         main(

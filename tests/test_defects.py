@@ -121,16 +121,16 @@ def test_a_match_on_every_defect_at_once_ends_in_a_result_with_a_row_per_file_ve
     for role, path in (("source", s), ("target", t)):
         assert f"warning: {path}: repaired for the match (the outputs keep its vertices): " in err, role
     res = read_result(out)
-    assert res["n_source"] == len(sv) and res["n_target"] == len(tv)
-    assert res["map_face"].shape == (len(tv),) and res["p2p_tgt_to_src"].shape == (len(tv),)
-    assert res["p2p_src_to_tgt"].shape == (len(sv),) and res["deformed_source"].shape == (len(sv), 3)
-    assert np.all(np.isfinite(res["map_bary"])) and np.all(np.isfinite(res["frames"]))
+    assert res.n_source == len(sv) and res.n_target == len(tv)
+    assert res.map_face.shape == (len(tv),) and res.p2p_tgt_to_src.shape == (len(tv),)
+    assert res.p2p_src_to_tgt.shape == (len(sv),) and res.deformed_source.shape == (len(sv), 3)
+    assert np.all(np.isfinite(res.map_bary)) and np.all(np.isfinite(res.frames))
     # the map names faces of the source file, never one the intake dropped, and points on them
     source = load_mesh(s)
-    assert res["map_face"].max() < len(sf)
+    assert res.map_face.max() < len(sf)
     areas = np.linalg.norm(np.cross(*(sv[sf[:, k]] - sv[sf[:, 0]] for k in (1, 2))), axis=1)
-    assert np.all(areas[res["map_face"]] > 0)
-    points = surface_points(source.vertices, source.faces, res["map_face"], res["map_bary"])
+    assert np.all(areas[res.map_face] > 0)
+    points = surface_points(source.vertices, source.faces, res.map_face, res.map_bary)
     assert np.all(np.isfinite(points))
     # the target's own vertices find their true source points (the pose search bends the capsule)
     own = origin >= 0

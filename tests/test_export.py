@@ -18,16 +18,10 @@ import trimesh
 
 import ncflow.io.result as export
 from ncflow.errors import InputError, ResultError
+from ncflow.io.frames import read_skeleton_frames_json, write_frames, write_skeleton_frames_json
 from ncflow.io.gltf.writer import write_animation_glb
 from ncflow.io.meshes import load_mesh
-from ncflow.io.result import (
-    CONTRACT_FILES,
-    read_result,
-    read_skeleton_frames_json,
-    write_frames,
-    write_result,
-    write_skeleton_frames_json,
-)
+from ncflow.io.result import CONTRACT_FILES, ResultFolder, read_result, write_result
 from ncflow.match.correspondence import correspondence_maps
 from ncflow.skeleton import Skeleton, load_skeleton
 
@@ -242,7 +236,7 @@ def test_write_then_read_result(tmp_path, sphere):
     rest, faces = sphere
     inputs, tv = _result_inputs(sphere)
     maps = inputs["maps"]
-    out = write_result(tmp_path / "res", **inputs)
+    out = write_result(tmp_path / "res", ResultFolder(**inputs))
     assert sorted(p.name for p in out.iterdir()) == sorted(CONTRACT_FILES)
     assert _leftovers(tmp_path, "res") == []
     ns, nt, k = rest.shape[0], tv.shape[0], 5
@@ -297,44 +291,54 @@ def test_write_then_read_result(tmp_path, sphere):
     assert trimesh.load(str(out / "animation.glb"), force="mesh", process=False).vertices.shape == (ns, 3)
     # read_result gives the same back
     r = read_result(out)
-    assert (r["n_source"], r["n_target"], r["n_frames"]) == (ns, nt, k)
-    np.testing.assert_array_equal(r["p2p_src_to_tgt"], maps["p2p_src_to_tgt"])
-    np.testing.assert_array_equal(r["p2p_tgt_to_src"], maps["p2p_tgt_to_src"])
-    np.testing.assert_array_equal(r["map_face"], maps["map_face"])
-    np.testing.assert_allclose(r["frames"], inputs["frames"], atol=1e-6)
-    np.testing.assert_allclose(r["frame_times"], np.linspace(0, 1, k))
-    np.testing.assert_array_equal(r["source_faces"], faces)
-    assert r["skeleton_target"].n_joints == 4 and r["skeleton_frames"]["positions"].shape == (k, 4, 3)
-    assert r["metrics"]["seed"] == 7
-    np.testing.assert_allclose(r["target_vertices"], tv, atol=1e-6)
-    np.testing.assert_array_equal(r["target_faces"], inputs["target_faces"])
+    assert (r.n_source, r.n_target, r.n_frames) == (ns, nt, k)
+    np.testing.assert_array_equal(r.p2p_src_to_tgt, maps["p2p_src_to_tgt"])
+    np.testing.assert_array_equal(r.p2p_tgt_to_src, maps["p2p_tgt_to_src"])
+    np.testing.assert_array_equal(r.map_face, maps["map_face"])
+    np.testing.assert_allclose(r.frames, inputs["frames"], atol=1e-6)
+    np.testing.assert_allclose(r.frame_times, np.linspace(0, 1, k))
+    np.testing.assert_array_equal(r.source_faces, faces)
+    assert r.skeleton_target.n_joints == 4 and r.skeleton_frames.shape == (k, 4, 3)
+    assert r.metrics["seed"] == 7
+    np.testing.assert_allclose(r.target_vertices, tv, atol=1e-6)
+    np.testing.assert_array_equal(r.target_faces, inputs["target_faces"])
+    # written again from what was read: the same files (the one folder type both ways)
+    again = r.write(tmp_path / "again")
+    for name in ("map_tgt_to_src.npz", "p2p_src_to_tgt.txt", "p2p_tgt_to_src.txt", "skeleton_frames.json"):
+        assert (again / name).read_bytes() == (out / name).read_bytes(), name
+    # the dict of earlier versions, for one release, with a warning
+    with pytest.warns(DeprecationWarning, match="use its attributes"):
+        assert r["n_frames"] == k and r["map_face"] is r.map_face
+    with pytest.warns(DeprecationWarning):
+        legacy = r["skeleton_frames"]
+    assert legacy["positions"] is r.skeleton_frames and list(legacy["names"]) == ["root", "mid", "top", "side"]
 
 
 def test_result_without_target_mesh_reads_as_none(tmp_path, sphere):
     inputs, _ = _result_inputs(sphere, k=2)
     inputs.update(target_vertices=None, target_faces=None)
-    out = write_result(tmp_path / "res", **inputs)
+    out = write_result(tmp_path / "res", ResultFolder(**inputs))
     assert not (out / "target.ply").exists()
     r = read_result(out)
-    assert r["target_vertices"] is None and r["target_faces"] is None
+    assert r.target_vertices is None and r.target_faces is None
 
 
 def test_target_mesh_must_match_the_maps(tmp_path, sphere):
     inputs, tv = _result_inputs(sphere, k=2)
     inputs.update(target_vertices=tv[:-1])
     with pytest.raises(ResultError, match="target has"):
-        write_result(tmp_path / "res", **inputs)
+        write_result(tmp_path / "res", ResultFolder(**inputs))
     assert not (tmp_path / "res").exists()
 
 
 def test_result_without_skeleton(tmp_path, sphere):
     inputs, _ = _result_inputs(sphere, k=2)
     inputs.update(skeleton_target=None, skeleton_frames=None)
-    out = write_result(tmp_path / "res", **inputs)
+    out = write_result(tmp_path / "res", ResultFolder(**inputs))
     without = set(CONTRACT_FILES) - {"skeleton_target.tgf", "skeleton_frames.json"}
     assert sorted(p.name for p in out.iterdir()) == sorted(without)
     r = read_result(out)
-    assert r["skeleton_target"] is None and r["skeleton_frames"] is None and r["n_frames"] == 2
+    assert r.skeleton_target is None and r.skeleton_frames is None and r.n_frames == 2
 
 
 @pytest.mark.parametrize("where", ["frames", "deformed", "bary", "metrics", "skeleton"])
@@ -359,7 +363,7 @@ def test_non_finite_is_refused_before_writing(tmp_path, sphere, where):
         inputs["skeleton_frames"][2, 1, 1] = np.nan
         match = "skeleton frames"
     with pytest.raises(ResultError, match=match):
-        write_result(tmp_path / "res", **inputs)
+        write_result(tmp_path / "res", ResultFolder(**inputs))
     assert not (tmp_path / "res").exists()
     assert list(tmp_path.iterdir()) == []
 
@@ -370,7 +374,7 @@ def test_bad_maps_are_refused(tmp_path, sphere):
     bad[0] = tv.shape[0]
     inputs["maps"] = dict(inputs["maps"], p2p_src_to_tgt=bad)
     with pytest.raises(ResultError, match=r"p2p_src_to_tgt indices span .* expected 0-based"):
-        write_result(tmp_path / "res", **inputs)
+        write_result(tmp_path / "res", ResultFolder(**inputs))
     assert list(tmp_path.iterdir()) == []
 
 
@@ -385,7 +389,7 @@ def test_failure_mid_write_leaves_nothing(tmp_path, sphere, monkeypatch):
 
     monkeypatch.setattr(export, "write_animation_glb", boom)  # runs after the PLYs, npz and frames
     with pytest.raises(RuntimeError, match="injected"):
-        write_result(tmp_path / "res", **inputs)
+        write_result(tmp_path / "res", ResultFolder(**inputs))
     # it did fail mid-write: the meshes, maps and frames were already staged
     staged = ["deformed_source.ply", "frames", "map_tgt_to_src.npz", "p2p_src_to_tgt.txt", "p2p_tgt_to_src.txt"]
     staged = sorted([*staged, "target.ply"])
@@ -394,12 +398,12 @@ def test_failure_mid_write_leaves_nothing(tmp_path, sphere, monkeypatch):
     assert list(tmp_path.iterdir()) == []
     # an existing result is left untouched by a failed overwrite
     monkeypatch.undo()
-    out = write_result(tmp_path / "res", **inputs)
+    out = write_result(tmp_path / "res", ResultFolder(**inputs))
     before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
     monkeypatch.setattr(export, "write_animation_glb", boom)
     other = dict(inputs, frames=inputs["frames"] + 1.0)
     with pytest.raises(RuntimeError, match="injected"):
-        write_result(out, overwrite=True, **other)
+        write_result(out, ResultFolder(**other), overwrite=True)
     after = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
     assert after == before
     assert _leftovers(tmp_path, "res") == []
@@ -411,26 +415,26 @@ def test_existing_folder_needs_overwrite(tmp_path, sphere):
     out.mkdir()
     (out / "notes.txt").write_text("mine")
     with pytest.raises(ResultError, match="not empty"):
-        write_result(out, **inputs)
+        write_result(out, ResultFolder(**inputs))
     assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]
-    write_result(out, overwrite=True, **inputs)
+    write_result(out, ResultFolder(**inputs), overwrite=True)
     assert (out / "notes.txt").read_text() == "mine"  # non-contract files are kept
     assert len(list((out / "frames").iterdir())) == 4
     # a shorter re-run replaces frames/ as a whole: no stale frames
     inputs3, _ = _result_inputs(sphere, k=3)
-    write_result(out, overwrite=True, **inputs3)
+    write_result(out, ResultFolder(**inputs3), overwrite=True)
     assert sorted(p.name for p in (out / "frames").iterdir()) == [f"frame_{i:04d}.ply" for i in range(3)]
-    assert read_result(out)["n_frames"] == 3 and (out / "notes.txt").exists()
+    assert read_result(out).n_frames == 3 and (out / "notes.txt").exists()
     assert _leftovers(tmp_path, "res") == []
     # an empty existing folder is fine without overwrite
     (tmp_path / "empty").mkdir()
-    write_result(tmp_path / "empty", **inputs3)
+    write_result(tmp_path / "empty", ResultFolder(**inputs3))
     assert (tmp_path / "empty" / "metrics.json").is_file()
 
 
 def test_read_result_names_bad_files(tmp_path, sphere):
     inputs, tv = _result_inputs(sphere, k=2)
-    out = write_result(tmp_path / "res", **inputs)
+    out = write_result(tmp_path / "res", ResultFolder(**inputs))
     (out / "p2p_tgt_to_src.txt").write_text("0\n" * (tv.shape[0] - 1) + "999\n")
     with pytest.raises(InputError, match=r"p2p_tgt_to_src\.txt: indices span \[0, 999\]"):
         read_result(out)
@@ -440,7 +444,7 @@ def test_read_result_names_bad_files(tmp_path, sphere):
     (out / "p2p_tgt_to_src.txt").unlink()
     with pytest.raises(InputError, match=r"p2p_tgt_to_src\.txt: missing result file"):
         read_result(out)
-    out = write_result(tmp_path / "res2", **inputs)
+    out = write_result(tmp_path / "res2", ResultFolder(**inputs))
     np.savez(out / "map_tgt_to_src.npz", face=np.zeros(3, dtype=np.int64))
     with pytest.raises(InputError, match=r"map_tgt_to_src\.npz: missing array 'bary'"):
         read_result(out)
@@ -458,11 +462,11 @@ def test_read_result_names_bad_files(tmp_path, sphere):
     np.savez(out / "map_tgt_to_src.npz", face=maps["map_face"], bary=bary[:, :2])
     with pytest.raises(InputError, match=r"map_tgt_to_src\.npz: 'bary' must have shape \(\d+, 3\), got \(\d+, 2\)"):
         read_result(out)
-    out = write_result(tmp_path / "res3", **inputs)
+    out = write_result(tmp_path / "res3", ResultFolder(**inputs))
     (out / "frames" / "frame_0000.ply").unlink()
     with pytest.raises(InputError, match=r"frames: frame numbers are not 0\.\.0 \(missing frame_0000\.ply\)"):
         read_result(out)
-    out = write_result(tmp_path / "res4", **inputs)
+    out = write_result(tmp_path / "res4", ResultFolder(**inputs))
     (out / "skeleton_frames.json").write_text("{not json")
     with pytest.raises(InputError, match=r"skeleton_frames\.json: not valid JSON"):
         read_result(out)
@@ -486,7 +490,7 @@ def test_skeleton_frames_json_round_trip(tmp_path):
 
 def test_failed_swap_restores_previous_result(tmp_path, sphere, monkeypatch):
     inputs, _ = _result_inputs(sphere, k=2)
-    out = write_result(tmp_path / "res", **inputs)
+    out = write_result(tmp_path / "res", ResultFolder(**inputs))
     (out / "notes.txt").write_text("mine")
     before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
     real_rename = export.os.rename
@@ -498,7 +502,7 @@ def test_failed_swap_restores_previous_result(tmp_path, sphere, monkeypatch):
 
     monkeypatch.setattr(export.os, "rename", flaky_rename)
     with pytest.raises(OSError, match="injected"):
-        write_result(out, overwrite=True, **dict(inputs, frames=inputs["frames"] + 1.0))
+        write_result(out, ResultFolder(**dict(inputs, frames=inputs["frames"] + 1.0)), overwrite=True)
     monkeypatch.undo()
     after = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
     assert after == before

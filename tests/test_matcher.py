@@ -174,9 +174,9 @@ def test_cli_match_writes_contract_and_is_reproducible(tmp_path, pair, capsys):
         outs[name] = out
     res = read_result(outs["a"])
     src, tgt, *_ = pair
-    assert res["n_source"] == src.n_vertices and res["n_target"] == tgt.n_vertices and res["n_frames"] == 4
-    np.testing.assert_allclose(res["frames"][0], src.vertices, atol=1e-5)  # PLY stores float32
-    assert res["p2p_src_to_tgt"].max() < tgt.n_vertices and res["p2p_tgt_to_src"].max() < src.n_vertices
+    assert res.n_source == src.n_vertices and res.n_target == tgt.n_vertices and res.n_frames == 4
+    np.testing.assert_allclose(res.frames[0], src.vertices, atol=1e-5)  # PLY stores float32
+    assert res.p2p_src_to_tgt.max() < tgt.n_vertices and res.p2p_tgt_to_src.max() < src.n_vertices
     metrics = json.loads((outs["a"] / "metrics.json").read_text())
     assert metrics["seed"] == 1 and metrics["config"]["flow"]["width"] == 16
     assert sum(p["steps"] for p in metrics["phases"]) == 12

@@ -25,7 +25,8 @@ from ncflow.cli import main
 from ncflow.config import preset
 from ncflow.evaluate import ground_truth_from_vertex_map
 from ncflow.geometry.mesh import Mesh
-from ncflow.io.result import CONTRACT_FILES, read_result, write_result
+from ncflow.io.fallback import save_result
+from ncflow.io.result import CONTRACT_FILES, ResultFolder, read_result
 from ncflow.skeleton import Skeleton
 from ncflow.synthetic.pairs import Pair, write_pairs
 from ncflow.synthetic.shapes import bend, capsule
@@ -60,17 +61,18 @@ class FakeResult:
             "timings": {"train": 0.0, "per_step": 0.0, "total": 0.0},
         }
 
-    def save(self, out_dir, overwrite=False):
-        return write_result(
-            out_dir,
+    def to_folder(self) -> ResultFolder:
+        return ResultFolder(
             deformed_source=self.deformed_source,
             source_faces=self.source.faces,
             maps=self.maps,
             frames=self.frames,
             frame_times=self.frame_times,
             metrics=self.metrics,
-            overwrite=overwrite,
         )
+
+    def save(self, out_dir, overwrite=False, *, shown=None):  # as MatchResult.save: the library's fallback
+        return save_result(self.to_folder(), out_dir, overwrite=overwrite, shown=shown)
 
 
 @pytest.fixture
@@ -237,7 +239,7 @@ def test_symlinked_out_with_overwrite_never_moves_user_files(tmp_path, monkeypat
         assert (mine / "notes.txt").read_text() == "my notes\n"
         assert (mine / "data" / "scan.ply").read_text() == "my scan\n"
         res = read_result(mine)
-        np.testing.assert_allclose(res["frames"][0], FakeResult(shift).frames[0], atol=1e-5)
+        np.testing.assert_allclose(res.frames[0], FakeResult(shift).frames[0], atol=1e-5)
         no_skeleton = set(CONTRACT_FILES) - {"skeleton_target.tgf", "skeleton_frames.json", "target.ply"}
         assert sorted(p.name for p in mine.iterdir()) == sorted([*no_skeleton, "notes.txt", "data"])
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in", "link", "mine"]  # nothing moved out
@@ -327,7 +329,7 @@ def test_failing_disk_leaves_nothing_partial_and_keeps_the_result(
     (copy_base,) = list(systmp.iterdir())
     copy = copy_base / "result"
     assert str(copy) in err
-    np.testing.assert_allclose(read_result(copy)["frames"], FakeResult(5.0).frames, atol=1e-5)
+    np.testing.assert_allclose(read_result(copy).frames, FakeResult(5.0).frames, atol=1e-5)
 
 
 def test_cli_reports_os_errors_in_one_line(tmp_path, monkeypatch, capsys):

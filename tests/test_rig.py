@@ -33,7 +33,7 @@ from ncflow.geometry.barycentric import surface_points
 from ncflow.geometry.rigid import linear_blend_skinning, skinning_matrices
 from ncflow.io.gltf.rig_writer import write_rig_glb
 from ncflow.io.gltf.skins import load_gltf_skin, pose_gltf
-from ncflow.io.result import read_result, write_result
+from ncflow.io.result import ResultFolder, read_result, write_result
 from ncflow.skeleton.kinematics import Pose
 from ncflow.synthetic.characters import make_character, pose_character, pose_world_transforms
 from ncflow.synthetic.pairs import make_pair
@@ -77,16 +77,18 @@ def case(tmp_path_factory):
     result = root / "result"
     write_result(
         result,
-        deformed_source=frames[-1],
-        source_faces=ch.faces,
-        maps=maps,
-        frames=frames,
-        frame_times=times,
-        skeleton_target=ch.skeleton.with_positions(joints[-1]),
-        skeleton_frames=joints,
-        metrics={"config": {"flow": {"skinning_width": 0.05}}},
-        target_vertices=pair.target.vertices,
-        target_faces=pair.target.faces,
+        ResultFolder(
+            deformed_source=frames[-1],
+            source_faces=ch.faces,
+            maps=maps,
+            frames=frames,
+            frame_times=times,
+            skeleton_target=ch.skeleton.with_positions(joints[-1]),
+            skeleton_frames=joints,
+            metrics={"config": {"flow": {"skinning_width": 0.05}}},
+            target_vertices=pair.target.vertices,
+            target_faces=pair.target.faces,
+        ),
     )
     jw = _joint_weights(ch)
     j4, w4 = limit_influences(jw)
@@ -171,14 +173,14 @@ def _skin_arrays(path):
 
 def test_weights_sum_to_one_and_bind_pose_is_the_target(case, rigged):
     res = read_result(case["result"], check_animation=False)
-    target = res["target_vertices"]
+    target = res.target_vertices
     diag = np.linalg.norm(np.ptp(target, axis=0))
     for which, report in rigged.items():
         gltf, a = _skin_arrays(report.path)
         assert report.weights_from == ("gltf skin" if which == "skin" else "skeleton")
         np.testing.assert_allclose(a["weights"].sum(1), 1.0, atol=1e-6)
         assert np.all(a["weights"] >= 0) and a["joints"].max() < len(gltf.skins[0].joints)
-        np.testing.assert_array_equal(a["indices"], res["target_faces"])
+        np.testing.assert_array_equal(a["indices"], res.target_faces)
         # skinned through the node hierarchy and the inverse bind matrices, by hand
         world = _node_world(gltf)[gltf.skins[0].joints]
         dense = np.zeros((a["position"].shape[0], world.shape[0]))
@@ -192,8 +194,8 @@ def test_weights_sum_to_one_and_bind_pose_is_the_target(case, rigged):
         assert report.bind_error < 1e-5 * diag
         np.testing.assert_allclose(pose_gltf(report.path, weld=False).vertices, target, atol=1e-6 * diag)
         # joints at the fitted target skeleton, names kept
-        np.testing.assert_allclose(again.joint_positions, res["skeleton_target"].positions, atol=1e-6 * diag)
-        assert again.names == list(res["skeleton_frames"]["names"])
+        np.testing.assert_allclose(again.joint_positions, res.skeleton_target.positions, atol=1e-6 * diag)
+        assert again.names == list(res.joint_names)
 
 
 def test_accessor_bounds_and_layout(rigged):

@@ -32,7 +32,7 @@ from ncflow.io.landmarks import read_landmarks
 from ncflow.io.meshes import save_mesh
 from ncflow.io.obj_uv import read_obj_uv, write_obj_uv
 from ncflow.io.ply_properties import read_ply_vertex_properties
-from ncflow.io.result import write_result
+from ncflow.io.result import ResultFolder, write_result
 from ncflow.io.vertex_arrays import read_vertex_array, write_vertex_array
 from ncflow.synthetic.characters import make_character, pose_character
 from ncflow.synthetic.pairs import make_pair
@@ -65,13 +65,15 @@ def _write_result(folder: Path, rest, faces, deformed, tv, tf, face, bary, *, wi
     }
     write_result(
         folder,
-        deformed_source=deformed,
-        source_faces=faces,
-        maps=maps,
-        frames=np.stack([rest, deformed]),
-        frame_times=np.array([0.0, 1.0]),
-        target_vertices=tv if with_target else None,
-        target_faces=tf if with_target else None,
+        ResultFolder(
+            deformed_source=deformed,
+            source_faces=faces,
+            maps=maps,
+            frames=np.stack([rest, deformed]),
+            frame_times=np.array([0.0, 1.0]),
+            target_vertices=tv if with_target else None,
+            target_faces=tf if with_target else None,
+        ),
     )
     return folder
 

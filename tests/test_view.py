@@ -24,7 +24,7 @@ from ncflow.cli import main
 from ncflow.errors import InputError
 from ncflow.geometry.barycentric import round_to_vertex, surface_points
 from ncflow.geometry.mesh import face_areas
-from ncflow.io.result import read_result, write_result
+from ncflow.io.result import ResultFolder, read_result, write_result
 from ncflow.synthetic.characters import make_character, pose_character
 from ncflow.synthetic.pairs import make_pair
 from ncflow.view.page import (
@@ -88,8 +88,8 @@ def case(tmp_path_factory):
         skeleton_target=pair.skeleton.with_positions(posed.joints),
         skeleton_frames=joints,
     )
-    result = write_result(base / "result", target_vertices=tv, target_faces=tf, **inputs)
-    old = write_result(base / "old", **inputs)  # a result without target.ply
+    result = write_result(base / "result", ResultFolder(target_vertices=tv, target_faces=tf, **inputs))
+    old = write_result(base / "old", ResultFolder(**inputs))  # a result without target.ply
     gt = base / "gt.txt"
     gt.write_text("".join(f"{i}\n" for i in truth))
     stored = read_result(result, check_animation=False)  # the PLY files hold float32 coordinates
@@ -98,13 +98,13 @@ def case(tmp_path_factory):
         "old": old,
         "gt": gt,
         "target_file": _target_copy(result, base),
-        "rest": stored["frames"][0],
+        "rest": stored.frames[0],
         "faces": faces,
-        "frames": stored["frames"],
+        "frames": stored.frames,
         "times": times,
         "joints": joints,
         "parents": pair.skeleton.parents,
-        "tv": stored["target_vertices"],
+        "tv": stored.target_vertices,
         "tf": tf,
         "map_face": face,
         "map_bary": bary,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ncflow.cli.options import MiB, add_config_arguments, check_seed, config_from_args, output_dir, save_result
+from ncflow.cli.options import MiB, add_config_arguments, check_seed, config_from_args, output_dir
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -72,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
         "seconds": time.perf_counter() - t0,
     }
     result.metrics["demo"] = summary
-    save_result(result, out, overwrite=args.overwrite, shown=args.out)
+    result.save(out, overwrite=args.overwrite, shown=args.out)
     # the inputs: staged beside, then swapped in (only the files write_pair writes are replaced)
     inputs = out / "inputs"
     staged = staging_dir(inputs)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from ncflow.cli.options import add_config_arguments, config_from_args, output_dir, result_size_estimate, save_result
+from ncflow.cli.options import add_config_arguments, config_from_args, output_dir, result_size_estimate
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -39,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
         need_bytes=result_size_estimate(args.source, args.target, cfg.frames),
     )
     result = Matcher(args.source, args.target, args.skeleton, cfg, quiet=args.quiet).run()
-    save_result(result, out, overwrite=args.overwrite, shown=args.out)
+    result.save(out, overwrite=args.overwrite, shown=args.out)
     if not args.quiet:
         c = result.metrics["constraints"]
         t = result.metrics["timings"]

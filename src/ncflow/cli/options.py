@@ -1,9 +1,8 @@
 """What the commands share: the matcher's options (``match``, ``demo``, ``batch``, ``benchmark``: preset,
 configuration file, seed, steps, frames, ``--set`` overrides and the ablation switches), the cluster
 options of ``batch`` and ``benchmark`` (``--jobs``, ``--scheduler``, ``--dashboard``), the checks
-of integer and number options, the check of every output path before any work
-(:func:`output_dir`, :func:`output_file`) and the saving of a match result with a fallback copy
-when the disk fails (:func:`save_result`).
+of integer and number options and the check of every output path before any work
+(:func:`output_dir`, :func:`output_file`).
 """
 
 from __future__ import annotations
@@ -121,70 +120,6 @@ def result_size_estimate(source, target, frames: int) -> int:
             return 0
 
     return 2 * (frames + 2) * size(source) + 2 * size(target) + MiB
-
-
-def save_result(result, out: Path, *, overwrite: bool, shown=None) -> Path:
-    """``result.save(out)``; when the disk fails, keep the trained result and say where it went.
-
-    The write is atomic (:func:`ncflow.io.result.write_result`): on an :class:`OSError` (a full
-    disk, a lost mount) nothing partial is left at ``out`` and an earlier result there is intact.
-    The result is then saved again under the system's temporary folder (the full output contract,
-    else an ``.npz`` of its arrays) and a one-line :class:`~ncflow.errors.ResultError` names that
-    copy, so the run need not be repeated.
-    """
-    from ncflow.errors import ResultError, first_line
-
-    shown = out if shown is None else shown
-    try:
-        return result.save(out, overwrite=overwrite)
-    except OSError as exc:
-        reason = exc.strerror or first_line(exc)
-        copy = save_fallback(result)
-        where = (
-            f"the result was saved to {copy} instead (move it into place)"
-            if copy is not None
-            else "no fallback copy could be written either"
-        )
-        raise ResultError(f"cannot write the result ({reason}); nothing there was changed; {where}", shown) from None
-
-
-def save_fallback(result) -> Path | None:
-    """Save a match result under the system's temporary folder; returns the path, or None.
-
-    First the whole output contract into ``TMP/ncflow-unsaved-XXXX/result``; if that fails too,
-    the arrays alone (deformed source, faces, frames, times, maps; no pickle) into
-    ``TMP/ncflow-unsaved-XXXX/result.npz``.
-    """
-    import tempfile
-
-    import numpy as np
-
-    from ncflow.errors import NcflowError
-    from ncflow.io.atomic import remove_tree
-
-    try:
-        base = Path(tempfile.mkdtemp(prefix="ncflow-unsaved-"))
-    except OSError:
-        return None
-    try:
-        return Path(result.save(base / "result", overwrite=False))
-    except (OSError, NcflowError):
-        remove_tree(base / "result")
-    try:
-        arrays = {
-            "deformed_source": np.asarray(result.deformed_source),
-            "source_faces": np.asarray(result.source.faces),
-            "frames": np.asarray(result.frames),
-            "frame_times": np.asarray(result.frame_times),
-        }
-        for key in ("map_face", "map_bary", "p2p_src_to_tgt", "p2p_tgt_to_src"):
-            if key in result.maps:
-                arrays[key] = np.asarray(result.maps[key])
-        np.savez(base / "result.npz", **arrays)
-        return base / "result.npz"
-    except Exception:  # noqa: BLE001 -- the last resort must not hide the original error
-        remove_tree(base)
-        return None
 
 
 def add_config_arguments(p: argparse.ArgumentParser) -> None:

@@ -41,6 +41,7 @@ import numpy as np
 from jaxtyping import Float, Int
 
 from ncflow.geometry.barycentric import surface_points
+from ncflow.geometry.mesh import face_areas
 
 # barycentric clamp for inserted points: keeps them strictly inside their face (moves a point by
 # at most this fraction of the face size, far below any reported precision)
@@ -296,8 +297,6 @@ def pair_geodesic_distances(
         want_exact = todo
     elif method == "auto":
         if exact_below is None:
-            from ncflow.geometry.mesh import face_areas
-
             exact_below = 0.25 * float(np.sqrt(face_areas(v, f).sum()))
         want_exact = todo & (np.linalg.norm(pa - pb, axis=1) <= exact_below)
     else:

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ncflow import __version__
 from ncflow.evaluate.aggregate import TABLE_COLUMNS, aggregate_rows
 from ncflow.evaluate.formatting import format_number
 from ncflow.evaluate.plots import plot_benchmark_curves
@@ -109,8 +110,6 @@ def write_benchmark_report(
     Returns:
         the report as written to ``report.json`` (strict JSON; see ``docs`` in the module docstring).
     """
-    from ncflow import __version__
-
     out_dir = Path(out_dir)
     labels = {m["id"]: m["label"] for m in methods}
     ids = [m["id"] for m in methods]

@@ -32,14 +32,17 @@ from pathlib import Path
 import numpy as np
 from jaxtyping import Float, Int
 
+from ncflow import __version__
 from ncflow.errors import InputError
 from ncflow.evaluate.formatting import as_number, format_number
-from ncflow.evaluate.metrics import TAU_MAX, pck_curve
+from ncflow.evaluate.metrics import TAU_MAX, evaluate_correspondence, pck_curve
 from ncflow.evaluate.plots import EVALUATION_PLOTS, _plot_writers
 from ncflow.geometry.mesh import Mesh
 from ncflow.io.arrays import dumps_strict, json_safe
 from ncflow.io.atomic import atomic_path, atomic_write_text
-from ncflow.io.ground_truth import GroundTruth
+from ncflow.io.ground_truth import GroundTruth, load_ground_truth
+from ncflow.io.meshes import load_mesh
+from ncflow.io.result import ResultFolder, read_result
 
 EVALUATION_FILE = "evaluation.json"
 _N_THRESHOLDS = 101
@@ -72,16 +75,16 @@ class Evaluation:
     result_dir: Path
 
 
-def _check_result_matches(result: dict, source: Mesh, target: Mesh) -> None:
-    if result["n_source"] != source.n_vertices or not np.array_equal(result["source_faces"], source.faces):
+def _check_result_matches(result: ResultFolder, source: Mesh, target: Mesh) -> None:
+    if result.n_source != source.n_vertices or not np.array_equal(result.source_faces, source.faces):
         raise InputError(
-            f"the result's source has {result['n_source']} vertices and {len(result['source_faces'])} faces, "
+            f"the result's source has {result.n_source} vertices and {len(result.source_faces)} faces, "
             f"this mesh has {source.n_vertices} and {source.n_faces} (not the source of this result)",
             source.name,
         )
-    if result["n_target"] != target.n_vertices:
+    if result.n_target != target.n_vertices:
         raise InputError(
-            f"the result maps {result['n_target']} target vertices, this mesh has {target.n_vertices} "
+            f"the result maps {result.n_target} target vertices, this mesh has {target.n_vertices} "
             "(not the target of this result)",
             target.name,
         )
@@ -203,12 +206,6 @@ def evaluate_result(
         InputError: one line naming the file: missing or broken result files, meshes that are not
             the result's, ground truth of the wrong size or format.
     """
-    from ncflow import __version__
-    from ncflow.evaluate.metrics import evaluate_correspondence
-    from ncflow.io.ground_truth import load_ground_truth
-    from ncflow.io.meshes import load_mesh
-    from ncflow.io.result import read_result
-
     t0 = time.perf_counter()
     result_dir = Path(result_dir)
     result = read_result(result_dir)
@@ -223,17 +220,17 @@ def evaluate_result(
     out = evaluate_correspondence(
         src,
         tgt,
-        result["map_face"],
-        result["map_bary"],
+        result.map_face,
+        result.map_bary,
         truth.face,
         truth.bary,
-        deformed_vertices=result["deformed_source"],
-        frames=result["frames"],
+        deformed_vertices=result.deformed_source,
+        frames=result.frames,
         gt_index=truth.target_index,
         geodesic_method=geodesic_method,
     )
     summary, arrays = out["summary"], out["arrays"]
-    metrics = result["metrics"]
+    metrics = result.metrics
     bones = bone_section(metrics, summary["unit_cube_scale"])
     timings = metrics.get("timings") if isinstance(metrics.get("timings"), dict) else {}
     record = {
@@ -250,7 +247,7 @@ def evaluate_result(
         },
         "n_source": src.n_vertices,
         "n_target": tgt.n_vertices,
-        "n_frames": int(result["n_frames"]),
+        "n_frames": int(result.n_frames),
         "n_ground_truth": int(truth.target_index.size),
         "headline": _headline(summary, bones),
         "summary": summary,
@@ -258,7 +255,7 @@ def evaluate_result(
         "curves": cumulative_curves(arrays),
         "timings": {"match": timings.get("total"), "evaluate": time.perf_counter() - t0},  # match: from metrics.json
     }
-    return Evaluation(record, arrays, src, tgt, result["map_face"], result["map_bary"], truth, result_dir)
+    return Evaluation(record, arrays, src, tgt, result.map_face, result.map_bary, truth, result_dir)
 
 
 def write_evaluation(evaluation: Evaluation, *, plots: bool = True, extra: dict | None = None) -> dict:

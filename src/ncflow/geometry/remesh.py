@@ -22,7 +22,7 @@ from jaxtyping import Float, Int
 from ncflow.errors import InputError
 from ncflow.geometry.barycentric import surface_points
 from ncflow.geometry.closest import _project, closest_points_on_surface
-from ncflow.geometry.topology import close_boundary
+from ncflow.geometry.topology import close_boundary, mesh_topology
 from ncflow.geometry.winding import signed_volume, winding_numbers
 
 
@@ -380,8 +380,6 @@ def _pseudo_normal_sign(
     """+1 outside / -1 inside a closed, consistently wound mesh, from the angle-weighted pseudo-normal
     of the closest feature (face, edge or vertex; Bærentzen & Aanæs 2005).
     """
-    from ncflow.geometry.topology import mesh_topology
-
     tri = v[f]
     fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)

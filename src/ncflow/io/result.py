@@ -34,7 +34,9 @@ Nothing non-finite is ever written: all
 arrays and the metrics (recursively) are checked first and a :class:`ResultError` names the first
 offending value. :func:`read_result` loads a folder back and checks it (sizes, index ranges, the
 two skeleton files together, optionally the animation), each problem one
-:class:`~ncflow.errors.InputError` line.
+:class:`~ncflow.errors.InputError` line. Both go through one :class:`ResultFolder`: what is written
+is what is read back (:func:`ncflow.io.fallback.save_result` writes one and, when the disk fails,
+keeps a copy under the system's temporary folder so that a finished match is never lost).
 
 Over 500 lines: one file contract, with its writer and its reader kept together so that they
 cannot drift apart.
@@ -42,11 +44,11 @@ cannot drift apart.
 
 from __future__ import annotations
 
-import json
+import dataclasses
 import os
 import re
+import warnings
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from jaxtyping import Float, Int
@@ -65,6 +67,7 @@ from ncflow.io.arrays import (
 )
 from ncflow.io.atomic import atomic_path, atomic_write_text, move_into_place, remove_tree, staging_dir
 from ncflow.io.files import dtype_text, read_json_object, read_npz_arrays, short_repr
+from ncflow.io.frames import read_skeleton_frames_json, write_frames, write_skeleton_frames_json
 from ncflow.io.gltf.writer import write_animation_glb
 from ncflow.io.ground_truth import read_index_file
 from ncflow.io.meshes import load_mesh, save_mesh
@@ -83,161 +86,103 @@ CONTRACT_FILES = (
     "target.ply",
 )
 _FRAME_RE = re.compile(r"^frame_(\d{4,})\.ply$")
+MAP_KEYS = ("map_face", "map_bary", "p2p_tgt_to_src", "p2p_src_to_tgt")
 
 
-# ----------------------------------------------------------------------------------------------
-# Correspondence
+@dataclasses.dataclass
+class ResultFolder:
+    """The output contract of ``ncflow match`` as arrays: what :func:`write_result` writes and
+    :func:`read_result` reads back.
 
-
-# ----------------------------------------------------------------------------------------------
-# Checks
-
-
-# ----------------------------------------------------------------------------------------------
-# Frames and glTF
-
-
-def write_frames(
-    directory: str | os.PathLike, frames: Float[np.ndarray, "K V 3"], faces: Int[np.ndarray, "F 3"]
-) -> list[Path]:
-    """Write ``frame_0000.ply`` … ``frame_{K-1:04d}.ply`` (all with ``faces``) into ``directory``.
-
-    Returns:
-        The K paths written.
-
-    Raises:
-        ResultError: bad shapes or non-finite coordinates (checked before anything is written).
+    Attributes:
+        deformed_source: (Vs, 3) source vertices flowed to t = 1, user coordinates.
+        source_faces: (Fs, 3) source triangles.
+        maps: the correspondence (:func:`~ncflow.match.correspondence.correspondence_maps`): ``map_face``
+            (Vt,), ``map_bary`` (Vt, 3), ``p2p_tgt_to_src`` (Vt,), ``p2p_src_to_tgt`` (Vs,); also
+            attributes of their own names.
+        frames: (K, Vs, 3) interpolation frames, frame 0 the rest source.
+        frame_times: (K,) strictly increasing times from 0 to 1 (scaled to the clip length in the GLB).
+        metrics: JSON-ready dict (NumPy/JAX scalars and arrays are converted when written).
+        skeleton_target: the fitted target skeleton (TGF, 1-based, internal joint order), or None for
+            a run without a skeleton (neither skeleton file is written then).
+        skeleton_frames: (K, J, 3) joint positions per frame, in the skeleton's internal order (with
+            ``skeleton_target``).
+        joint_names: joint names of ``skeleton_frames.json`` (default: the skeleton's, or null).
+        target_vertices, target_faces: the target mesh as given, written as ``target.ply`` so that the
+            folder alone serves ``ncflow view``, ``transfer`` and ``rig`` (None: no ``target.ply``).
+        animation: the path of ``animation.glb`` of a folder read back (None before it is written).
     """
-    frames = as_frames(frames)
-    faces = as_faces(faces, frames.shape[1])
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for k, v in enumerate(frames):
-        path = directory / f"frame_{k:04d}.ply"
-        save_mesh(path, v, faces)
-        paths.append(path)
-    return paths
 
+    deformed_source: Float[np.ndarray, "Vs 3"]
+    source_faces: Int[np.ndarray, "Fs 3"]
+    maps: dict[str, np.ndarray]
+    frames: Float[np.ndarray, "K Vs 3"]
+    frame_times: Float[np.ndarray, " K"]
+    metrics: dict = dataclasses.field(default_factory=dict)
+    skeleton_target: Skeleton | None = None
+    skeleton_frames: Float[np.ndarray, "K J 3"] | None = None
+    joint_names: list[str] | tuple[str, ...] | None = None
+    target_vertices: Float[np.ndarray, "Vt 3"] | None = None
+    target_faces: Int[np.ndarray, "Ft 3"] | None = None
+    animation: Path | None = None
 
-# ----------------------------------------------------------------------------------------------
-# Skeleton frames
+    @property
+    def map_face(self) -> np.ndarray:
+        return self.maps["map_face"]
 
+    @property
+    def map_bary(self) -> np.ndarray:
+        return self.maps["map_bary"]
 
-def write_skeleton_frames_json(
-    path: str | os.PathLike,
-    positions: Float[np.ndarray, "K J 3"],
-    parents: Int[np.ndarray, " J"],
-    names: list[str] | tuple[str, ...] | None,
-    times: Float[np.ndarray, " K"],
-) -> Path:
-    """Write ``{"names", "parents", "times", "positions"}``: joint positions (K, J, 3) per frame.
+    @property
+    def p2p_tgt_to_src(self) -> np.ndarray:
+        return self.maps["p2p_tgt_to_src"]
 
-    ``parents`` are 0-based indices into the joint list (−1 for the root), in the same joint
-    order as the positions (for :func:`write_result`: the skeleton's internal topological order,
-    which is also the node order of ``skeleton_target.tgf``). ``names`` may be None (written as
-    null).
-    """
-    pos = as_frames(positions, "skeleton frames")
-    k, j, _ = pos.shape
-    par = np.asarray(parents).reshape(-1)
-    if par.shape != (j,) or not np.issubdtype(par.dtype, np.integer):
-        raise ResultError(f"expected {j} integer parents (one per joint), got shape {par.shape}")
-    if par.min() < -1 or par.max() >= j:
-        raise ResultError(f"parents must be in [-1, {j}), got [{int(par.min())}, {int(par.max())}]")
-    if names is not None and len(names) != j:
-        raise ResultError(f"expected {j} joint names, got {len(names)}")
-    t = as_times(times, k)
-    rows = ",\n  ".join(json.dumps([[float(x) for x in p] for p in frame]) for frame in pos)
-    parts = [
-        f' "names": {json.dumps(None if names is None else [str(s) for s in names])}',
-        f' "parents": {json.dumps([int(p) for p in par])}',
-        f' "times": {json.dumps([float(x) for x in t])}',
-        f' "positions": [\n  {rows}\n ]',
-    ]
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(path, "{\n" + ",\n".join(parts) + "\n}\n")
-    return path
+    @property
+    def p2p_src_to_tgt(self) -> np.ndarray:
+        return self.maps["p2p_src_to_tgt"]
 
+    @property
+    def n_source(self) -> int:
+        return int(np.shape(self.deformed_source)[0])
 
-def read_skeleton_frames_json(path: str | os.PathLike) -> dict[str, Any]:
-    """Read :func:`write_skeleton_frames_json` output: positions (K, J, 3), parents (J,), names, times (K,).
+    @property
+    def n_target(self) -> int:
+        return int(np.shape(self.maps["map_face"])[0])
 
-    Raises:
-        InputError: one line naming the file and the problem.
-    """
-    path = Path(path)
-    data = _read_json(path)
-    for key in ("parents", "times", "positions"):
-        if key not in data:
-            raise InputError(f"missing key {key!r}", path)
-    try:
-        pos = np.asarray(data["positions"], dtype=np.float64)
-        times = np.asarray(data["times"], dtype=np.float64)
-        parents = np.asarray(data["parents"])
-    except (TypeError, ValueError):
-        raise InputError("'positions', 'times' and 'parents' must be numeric lists", path) from None
-    if pos.ndim != 3 or pos.shape[2] != 3:
-        raise InputError(f"'positions' must be (K, J, 3), got shape {pos.shape}", path)
-    k, j, _ = pos.shape
-    if times.shape != (k,):
-        raise InputError(f"'times' has shape {times.shape}, expected ({k},)", path)
-    if parents.shape != (j,) or (j and not np.issubdtype(parents.dtype, np.integer)):
-        raise InputError(f"'parents' must be {j} integers, got shape {parents.shape}", path)
-    if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(times))):
-        raise InputError("non-finite joint positions or times", path)
-    names = data.get("names")
-    if names is not None and (not isinstance(names, list) or len(names) != j):
-        raise InputError(f"'names' must be null or a list of {j} strings", path)
-    return {"positions": pos, "parents": parents.astype(np.int64), "names": names, "times": times}
+    @property
+    def n_frames(self) -> int:
+        return int(np.shape(self.frames)[0])
 
+    def write(self, out_dir: str | os.PathLike, *, overwrite: bool = False, clip_seconds: float = 2.0) -> Path:
+        """:func:`write_result` of this folder."""
+        return write_result(out_dir, self, overwrite=overwrite, clip_seconds=clip_seconds)
 
-# ----------------------------------------------------------------------------------------------
-# The result folder
+    def __getitem__(self, key: str):
+        """The dict of :func:`read_result` before version 0.3 (``result["map_face"]``), for one release."""
+        warnings.warn(
+            "read_result returns a ResultFolder: use its attributes (result.map_face) instead of result['map_face']",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        if key == "skeleton_frames" and self.skeleton_frames is not None:
+            return {
+                "positions": self.skeleton_frames,
+                "parents": self.skeleton_target.parents,
+                "names": None if self.joint_names is None else list(self.joint_names),
+                "times": self.frame_times,
+            }
+        return getattr(self, key)
 
 
 def write_result(
-    out_dir: str | os.PathLike,
-    *,
-    deformed_source: Float[np.ndarray, "Vs 3"],
-    source_faces: Int[np.ndarray, "Fs 3"],
-    maps: dict[str, np.ndarray],
-    frames: Float[np.ndarray, "K Vs 3"],
-    frame_times: Float[np.ndarray, " K"],
-    skeleton_target: Skeleton | None = None,
-    skeleton_frames: Float[np.ndarray, "K J 3"] | None = None,
-    parents: Int[np.ndarray, " J"] | None = None,
-    joint_names: list[str] | tuple[str, ...] | None = None,
-    metrics: dict | None = None,
-    target_vertices: Float[np.ndarray, "Vt 3"] | None = None,
-    target_faces: Int[np.ndarray, "Ft 3"] | None = None,
-    overwrite: bool = False,
-    clip_seconds: float = 2.0,
+    out_dir: str | os.PathLike, result: ResultFolder, *, overwrite: bool = False, clip_seconds: float = 2.0
 ) -> Path:
-    """Write the ``ncflow match`` output contract into ``out_dir``, atomically.
+    """Write the ``ncflow match`` output contract of ``result`` into ``out_dir``, atomically.
 
     Args:
         out_dir: the result folder (created; its parent too).
-        deformed_source: (Vs, 3) source vertices flowed to t = 1, user coordinates.
-        source_faces: (Fs, 3) source triangles.
-        maps: :func:`correspondence_maps` output; uses ``map_face`` (Vt,), ``map_bary`` (Vt, 3),
-            ``p2p_tgt_to_src`` (Vt,) and ``p2p_src_to_tgt`` (Vs,). n_target is ``len(map_face)``.
-        frames: (K, Vs, 3) interpolation frames, frame 0 the rest source.
-        frame_times: (K,) strictly increasing times (t from 0 to 1); written to ``metrics.json``
-            (key ``frame_times``) and ``skeleton_frames.json``; scaled to ``clip_seconds`` in the GLB.
-        skeleton_target: fitted target skeleton (written as TGF, 1-based, internal joint order),
-            or None for a run without skeleton (then neither skeleton file is written).
-        skeleton_frames: (K, J, 3) joint positions per frame, in the skeleton's internal order;
-            required with ``skeleton_target``.
-        parents: (J,) parents of the joints of ``skeleton_frames`` (default: the skeleton's; when
-            given they must equal the skeleton's).
-        joint_names: joint names (default: the skeleton's, or null).
-        metrics: JSON-serialisable dict (numpy/JAX scalars and arrays are converted).
-        target_vertices: (Vt, 3) the target mesh as given (user coordinates), written with
-            ``target_faces`` as ``target.ply`` so that the result folder alone serves ``ncflow view``,
-            ``transfer`` and ``rig``; Vt must equal the maps' n_target. Omitted: no ``target.ply``.
-        target_faces: (Ft, 3) the target's triangles (with ``target_vertices``).
+        result: what to write (``frame_times`` also go to ``metrics.json`` under ``frame_times``).
         overwrite: allow an existing non-empty ``out_dir``: its contract entries are replaced
             (``frames/`` as a whole) and its other entries kept. Otherwise such a folder is refused.
         clip_seconds: length of the GLB animation clip.
@@ -255,21 +200,78 @@ def write_result(
     if shown.is_symlink() and not shown.exists():
         raise ResultError("is a broken symbolic link", shown)
     _check_target_dir(out_dir, overwrite, shown)
-    # --- validate everything first --------------------------------------------------------
-    deformed = as_frames(np.asarray(deformed_source)[None], "deformed source")[0]
+    checked = _checked(result)
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    tmp = staging_dir(out_dir)  # os.mkdir: the umask's mode, unlike mkdtemp's 0700
+    try:
+        _write_files(tmp, checked, clip_seconds)
+        _move_into_place(tmp, out_dir, overwrite, shown)
+    except BaseException:
+        remove_tree(tmp)
+        raise
+    return shown
+
+
+def _checked(r: ResultFolder) -> ResultFolder:
+    """``r`` with every array checked and converted (shapes, index ranges, finiteness) and the metrics
+    made JSON-ready; :class:`ResultError` naming the first problem, before anything is written.
+    """
+    deformed = as_frames(np.asarray(r.deformed_source)[None], "deformed source")[0]
     nv = deformed.shape[0]
-    faces = as_faces(source_faces, nv, "source faces")
-    frames = as_frames(frames)
+    faces = as_faces(r.source_faces, nv, "source faces")
+    frames = as_frames(r.frames)
     if frames.shape[1] != nv:
         raise ResultError(f"frames have {frames.shape[1]} vertices but the deformed source has {nv}")
-    k = frames.shape[0]
-    times = as_times(frame_times, k)
-    for key in ("map_face", "map_bary", "p2p_tgt_to_src", "p2p_src_to_tgt"):
+    times = as_times(r.frame_times, frames.shape[0])
+    maps = _checked_maps(r.maps, nv, faces.shape[0])
+    nt = maps["map_face"].shape[0]
+    target = (None, None)
+    if (r.target_vertices is None) != (r.target_faces is None):
+        raise ResultError("target_vertices and target_faces must be given together")
+    if r.target_vertices is not None:
+        tv = as_frames(np.asarray(r.target_vertices)[None], "target vertices")[0]
+        if tv.shape[0] != nt:
+            raise ResultError(f"the target has {tv.shape[0]} vertices but the maps have {nt} target vertices")
+        target = (tv, as_faces(r.target_faces, nt, "target faces"))
+    metrics = {} if r.metrics is None else r.metrics
+    if not isinstance(metrics, dict):
+        raise ResultError(f"metrics must be a dict, got {type(metrics).__name__}")
+    check_finite_tree(metrics)
+    metrics = json_safe({**metrics, "frame_times": [float(x) for x in times]})[0]
+    sk_frames, names = None, r.joint_names
+    if r.skeleton_target is not None or r.skeleton_frames is not None:
+        if r.skeleton_target is None or r.skeleton_frames is None:
+            raise ResultError("skeleton_target and skeleton_frames must be given together")
+        sk_frames = as_frames(r.skeleton_frames, "skeleton frames")
+        check_finite("target skeleton joints", r.skeleton_target.positions)
+        if sk_frames.shape[:2] != (frames.shape[0], r.skeleton_target.n_joints):
+            raise ResultError(
+                f"skeleton frames must be ({frames.shape[0]}, {r.skeleton_target.n_joints}, 3) (frames, joints), "
+                f"got {sk_frames.shape}"
+            )
+        names = r.skeleton_target.names if names is None else names
+    return dataclasses.replace(
+        r,
+        deformed_source=deformed,
+        source_faces=faces,
+        maps=maps,
+        frames=frames,
+        frame_times=times,
+        metrics=metrics,
+        skeleton_frames=sk_frames,
+        joint_names=names,
+        target_vertices=target[0],
+        target_faces=target[1],
+    )
+
+
+def _checked_maps(maps: dict, nv: int, n_faces: int) -> dict[str, np.ndarray]:
+    for key in MAP_KEYS:
         if key not in maps:
             raise ResultError(f"maps lack {key!r} (expected the output of correspondence_maps)")
     map_face = np.asarray(maps["map_face"]).reshape(-1)
     nt = map_face.shape[0]
-    map_face = as_index(map_face, nt, faces.shape[0], "map_tgt_to_src face")
+    map_face = as_index(map_face, nt, n_faces, "map_tgt_to_src face")
     bary = np.asarray(maps["map_bary"], dtype=np.float64)
     if bary.shape != (nt, 3):
         raise ResultError(f"map_tgt_to_src bary must be ({nt}, 3), got {bary.shape}")
@@ -278,58 +280,28 @@ def write_result(
     if nt == 0:
         raise ResultError("the correspondence maps are empty (no target vertices)")
     p2p_st = as_index(maps["p2p_src_to_tgt"], nv, nt, "p2p_src_to_tgt")
-    target = None
-    if (target_vertices is None) != (target_faces is None):
-        raise ResultError("target_vertices and target_faces must be given together")
-    if target_vertices is not None:
-        tv = as_frames(np.asarray(target_vertices)[None], "target vertices")[0]
-        if tv.shape[0] != nt:
-            raise ResultError(f"the target has {tv.shape[0]} vertices but the maps have {nt} target vertices")
-        target = (tv, as_faces(target_faces, nt, "target faces"))
-    metrics = {} if metrics is None else metrics
-    if not isinstance(metrics, dict):
-        raise ResultError(f"metrics must be a dict, got {type(metrics).__name__}")
-    check_finite_tree(metrics)
-    metrics = dict(metrics)
-    metrics["frame_times"] = [float(x) for x in times]
-    metrics_text = dumps_strict(json_safe(metrics)[0])  # finite: checked above
-    sk_frames = sk_parents = None
-    if skeleton_target is not None or skeleton_frames is not None:
-        if skeleton_target is None or skeleton_frames is None:
-            raise ResultError("skeleton_target and skeleton_frames must be given together")
-        sk_frames = as_frames(skeleton_frames, "skeleton frames")
-        check_finite("target skeleton joints", skeleton_target.positions)
-        if sk_frames.shape[:2] != (k, skeleton_target.n_joints):
-            raise ResultError(
-                f"skeleton frames must be ({k}, {skeleton_target.n_joints}, 3) (frames, joints), got {sk_frames.shape}"
-            )
-        sk_parents = np.asarray(skeleton_target.parents if parents is None else parents)
-        if not np.array_equal(sk_parents, skeleton_target.parents):
-            raise ResultError("parents differ from the target skeleton's (use the skeleton's internal joint order)")
-        if joint_names is None:
-            joint_names = skeleton_target.names
-    # --- write into a temporary folder, then move it into place ---------------------------
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = staging_dir(out_dir)  # os.mkdir: the umask's mode, unlike mkdtemp's 0700
-    try:
-        save_mesh(tmp / "deformed_source.ply", deformed, faces)
-        if target is not None:
-            save_mesh(tmp / "target.ply", *target)
-        _write_indices(tmp / "p2p_src_to_tgt.txt", p2p_st)
-        _write_indices(tmp / "p2p_tgt_to_src.txt", p2p_ts)
-        with atomic_path(tmp / "map_tgt_to_src.npz") as part:
-            np.savez(part, face=map_face, bary=bary)
-        write_frames(tmp / "frames", frames, faces)
-        write_animation_glb(tmp / "animation.glb", frames, faces, times, sk_frames, sk_parents, duration=clip_seconds)
-        if skeleton_target is not None:
-            save_skeleton(tmp / "skeleton_target.tgf", skeleton_target)
-            write_skeleton_frames_json(tmp / "skeleton_frames.json", sk_frames, sk_parents, joint_names, times)
-        atomic_write_text(tmp / "metrics.json", metrics_text)
-        _move_into_place(tmp, out_dir, overwrite, shown)
-    except BaseException:
-        remove_tree(tmp)
-        raise
-    return shown
+    return {"map_face": map_face, "map_bary": bary, "p2p_tgt_to_src": p2p_ts, "p2p_src_to_tgt": p2p_st}
+
+
+def _write_files(tmp: Path, r: ResultFolder, clip_seconds: float) -> None:
+    """Every file of the contract of a checked folder into ``tmp``."""
+    save_mesh(tmp / "deformed_source.ply", r.deformed_source, r.source_faces)
+    if r.target_vertices is not None:
+        save_mesh(tmp / "target.ply", r.target_vertices, r.target_faces)
+    _write_indices(tmp / "p2p_src_to_tgt.txt", r.p2p_src_to_tgt)
+    _write_indices(tmp / "p2p_tgt_to_src.txt", r.p2p_tgt_to_src)
+    with atomic_path(tmp / "map_tgt_to_src.npz") as part:
+        np.savez(part, face=r.map_face, bary=r.map_bary)
+    write_frames(tmp / "frames", r.frames, r.source_faces)
+    parents = None if r.skeleton_target is None else r.skeleton_target.parents
+    times = r.frame_times
+    write_animation_glb(
+        tmp / "animation.glb", r.frames, r.source_faces, times, r.skeleton_frames, parents, duration=clip_seconds
+    )
+    if r.skeleton_target is not None:
+        save_skeleton(tmp / "skeleton_target.tgf", r.skeleton_target)
+        write_skeleton_frames_json(tmp / "skeleton_frames.json", r.skeleton_frames, parents, r.joint_names, times)
+    atomic_write_text(tmp / "metrics.json", dumps_strict(r.metrics))  # finite: checked
 
 
 def _write_indices(path: Path, values: np.ndarray) -> None:
@@ -413,7 +385,7 @@ def _read_ply(path: Path):
     return mesh
 
 
-def read_result(out_dir: str | os.PathLike, *, check_animation: bool = True) -> dict[str, Any]:
+def read_result(out_dir: str | os.PathLike, *, check_animation: bool = True) -> ResultFolder:
     """Load and validate a result folder written by :func:`write_result`.
 
     Args:
@@ -421,13 +393,9 @@ def read_result(out_dir: str | os.PathLike, *, check_animation: bool = True) -> 
         check_animation: also parse ``animation.glb`` and check its morph-target count (K).
 
     Returns:
-        dict with ``deformed_source`` (Vs, 3), ``source_faces`` (Fs, 3), ``p2p_src_to_tgt`` (Vs,),
-        ``p2p_tgt_to_src`` (Vt,), ``map_face`` (Vt,), ``map_bary`` (Vt, 3), ``frames`` (K, Vs, 3),
-        ``frame_times`` (K,), ``metrics`` (dict), ``skeleton_target`` (Skeleton or None),
-        ``skeleton_frames`` (dict of ``positions`` (K, J, 3), ``parents``, ``names``, ``times``, or
-        None), ``animation`` (path of the GLB), ``n_source``, ``n_target``, ``n_frames``,
-        ``target_vertices`` (Vt, 3) and ``target_faces`` (Ft, 3) from ``target.ply`` (None for a result
-        written without it). The two skeleton files are optional but must come together.
+        the :class:`ResultFolder` (``animation``: the path of the GLB; ``target_vertices`` and
+        ``target_faces`` None for a result written without ``target.ply``). The two skeleton files are
+        optional but must come together.
 
     Raises:
         InputError: one line naming the missing or bad file.
@@ -524,34 +492,34 @@ def read_result(out_dir: str | os.PathLike, *, check_animation: bool = True) -> 
         if tm.n_vertices != nt:
             raise InputError(f"the target has {tm.n_vertices} vertices but the maps have {nt}", target_path)
         target_vertices, target_faces = tm.vertices, tm.faces
-    return {
-        "target_vertices": target_vertices,
-        "target_faces": target_faces,
-        "deformed_source": deformed.vertices,
-        "source_faces": faces,
-        "p2p_src_to_tgt": p2p["p2p_src_to_tgt"],
-        "p2p_tgt_to_src": p2p["p2p_tgt_to_src"],
-        "map_face": face.astype(np.int64),
-        "map_bary": bary.astype(np.float64),
-        "frames": frames,
-        "frame_times": times,
-        "metrics": metrics,
-        "skeleton_target": skeleton,
-        "skeleton_frames": sk_frames,
-        "animation": glb,
-        "n_source": nv,
-        "n_target": nt,
-        "n_frames": k,
-    }
+    return ResultFolder(
+        deformed_source=deformed.vertices,
+        source_faces=faces,
+        maps={
+            "map_face": face.astype(np.int64),
+            "map_bary": bary.astype(np.float64),
+            "p2p_tgt_to_src": p2p["p2p_tgt_to_src"],
+            "p2p_src_to_tgt": p2p["p2p_src_to_tgt"],
+        },
+        frames=frames,
+        frame_times=times,
+        metrics=metrics,
+        skeleton_target=skeleton,
+        skeleton_frames=None if sk_frames is None else sk_frames["positions"],
+        joint_names=None if sk_frames is None else sk_frames["names"],
+        target_vertices=target_vertices,
+        target_faces=target_faces,
+        animation=glb,
+    )
 
 
 def result_target(
-    result: dict[str, Any], target: str | os.PathLike | None, result_dir: str | os.PathLike, *, replace: bool = True
+    result: ResultFolder, target: str | os.PathLike | None, result_dir: str | os.PathLike, *, replace: bool = True
 ) -> tuple[np.ndarray, np.ndarray]:
     """(vertices, faces) of a result's target: the mesh file ``target`` when given, else ``target.ply``.
 
     Args:
-        result: :func:`read_result` output.
+        result: a folder read back (:func:`read_result`).
         target: a target mesh file (for results written without ``target.ply``), or None.
         result_dir: the folder (named in the error when no target is available).
         replace: whether ``target`` may replace an existing ``target.ply`` (else that is an error).
@@ -561,17 +529,17 @@ def result_target(
             ``target`` whose vertex count is not the result's n_target.
     """
     if target is None:
-        if result["target_vertices"] is None:
+        if result.target_vertices is None:
             raise InputError(
                 "the result has no target.ply (an older result); give the target mesh with --target", result_dir
             )
-        return result["target_vertices"], result["target_faces"]
-    if not replace and result["target_vertices"] is not None:
+        return result.target_vertices, result.target_faces
+    if not replace and result.target_vertices is not None:
         raise InputError("--target is only for results without target.ply; this result has one", target)
     mesh = load_mesh(target)
-    if mesh.n_vertices != result["n_target"]:
+    if mesh.n_vertices != result.n_target:
         raise InputError(
-            f"has {mesh.n_vertices} vertices but the result maps {result['n_target']} target vertices "
+            f"has {mesh.n_vertices} vertices but the result maps {result.n_target} target vertices "
             "(not the target of this result)",
             target,
         )

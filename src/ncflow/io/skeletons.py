@@ -39,6 +39,7 @@ from ncflow.errors import InputError
 from ncflow.geometry.skeleton import MAX_JOINTS, Skeleton, _default_labels
 from ncflow.io.atomic import atomic_write_text
 from ncflow.io.files import check_input_file, check_regular_file, read_json_object, short_repr
+from ncflow.io.gltf.skins import gltf_skeleton
 
 SKELETON_SUFFIXES = (".tgf", ".json", ".glb", ".gltf")
 
@@ -270,10 +271,6 @@ def load_skeleton(
     path = Path(path)
     suffix = check_input_file(path, "skeleton", SKELETON_SUFFIXES)
     if suffix in (".glb", ".gltf"):
-        try:
-            from ncflow.io.gltf.skins import gltf_skeleton
-        except ImportError as exc:
-            raise InputError(f"glTF skeletons are not available ({exc})", path) from None
         # rigs stack joints at one point: merged, decided on the bind pose (same joints at every time)
         return gltf_skeleton(path, time, animation, name=path)[0]
     if time is not None or animation is not None:

@@ -21,6 +21,7 @@ from jaxtyping import Float, Int
 
 from ncflow.errors import ResultError
 from ncflow.geometry.barycentric import round_to_vertex
+from ncflow.geometry.closest import closest_points_on_surface
 from ncflow.io.arrays import check_finite
 
 if TYPE_CHECKING:
@@ -56,8 +57,6 @@ def correspondence_maps(
         (to the nearest target vertex when ``target_faces`` is None).
     """
     from scipy.spatial import cKDTree
-
-    from ncflow.geometry.closest import closest_points_on_surface
 
     rest = np.asarray(rest_source_vertices, dtype=np.float64)
     flowed = np.asarray(flowed_source_vertices, dtype=np.float64)

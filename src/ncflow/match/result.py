@@ -25,6 +25,8 @@ from ncflow.config import config_to_dict
 from ncflow.flow import flow_points, hermite, integrate, time_grid
 from ncflow.geometry.mesh import Mesh
 from ncflow.geometry.normalize import Normalization
+from ncflow.io.fallback import save_result
+from ncflow.io.result import ResultFolder
 from ncflow.jit.buckets import pad_points
 from ncflow.jit.cache import jit_run_once
 from ncflow.losses import bone_constraints
@@ -88,26 +90,28 @@ class MatchResult:
     def _placed_back(self, states: np.ndarray, times: np.ndarray) -> np.ndarray:
         return move_back(self.placement, states, times, self.pivot)
 
-    def save(self, out_dir: str | os.PathLike, overwrite: bool = False) -> Path:
-        """Write the output contract of DESIGN.md into ``out_dir`` (atomically)."""
-        from ncflow.io.result import write_result
-
-        return write_result(
-            out_dir,
+    def to_folder(self) -> ResultFolder:
+        """The output contract of this result (DESIGN.md "Output contract") as arrays."""
+        return ResultFolder(
             deformed_source=self.deformed_source,
             source_faces=self.source.faces,
             maps=self.maps,
             frames=self.frames,
             frame_times=self.frame_times,
+            metrics=self.metrics,
             skeleton_target=self.skeleton_target,
             skeleton_frames=self.skeleton_frames,
-            parents=self.skeleton.parents,
             joint_names=list(self.skeleton.names) if self.skeleton.names else None,
-            metrics=self.metrics,
             target_vertices=self.target.vertices,
             target_faces=self.target.faces,
-            overwrite=overwrite,
         )
+
+    def save(self, out_dir: str | os.PathLike, overwrite: bool = False, *, shown=None) -> Path:
+        """Write the output contract into ``out_dir``, atomically; when the disk fails, a copy is kept under
+        the system's temporary folder and the :class:`~ncflow.errors.ResultError` names it
+        (:func:`ncflow.io.fallback.save_result`; ``shown``: the folder as the user named it).
+        """
+        return save_result(self.to_folder(), out_dir, overwrite=overwrite, shown=shown)
 
 
 FINAL_BONE_SAMPLES = 200  # per bone, for the reported g_k (fresh samples, so an estimate of the integral)

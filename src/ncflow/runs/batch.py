@@ -42,12 +42,19 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from ncflow import __version__
 from ncflow.config import RESULT_NEUTRAL, Config, config_to_dict
 from ncflow.errors import InputError
 from ncflow.io.atomic import atomic_write_text
+from ncflow.io.files import read_npz_arrays
+from ncflow.io.meshes import load_mesh
+from ncflow.match.inputs import intake
+from ncflow.match.matcher import Matcher
+from ncflow.match.prepare import source_tissue, uses_tissue, working_source
 from ncflow.runs.cluster import open_client
 from ncflow.runs.engine import RETRIES, Outcome, Task, error_line, run_tasks
 from ncflow.runs.pairs_csv import PairSpec, read_pairs_csv
+from ncflow.tissue import write_tissue_file
 
 MANIFEST_FILE = "run_manifest.json"
 SUMMARY_FILE = "batch.json"
@@ -84,8 +91,6 @@ def match_manifest(source: str, target: str, skeleton: str, config: Config) -> d
     """What a match result is made from: the SHA-256 of its three input files, the ncflow version and
     :func:`result_config`. Equal manifests mean a finished result can be reused.
     """
-    from ncflow import __version__
-
     return {
         "ncflow_version": __version__,
         "source_sha256": file_sha256(source),
@@ -126,8 +131,6 @@ def tissue_key(source: str, config: Config) -> str | None:
     """Name of the shared tissue of a source: a digest of its content and the settings the tissue
     depends on; None when the run needs no shared tissue (no tissue term, or ``tissue.file`` given).
     """
-    from ncflow.match.prepare import uses_tissue
-
     if not uses_tissue(config) or config.tissue.file:
         return None
     t = config.tissue
@@ -140,8 +143,6 @@ def _tissue_file_ok(path: str) -> bool:
     checks it against its source again).
     """
     import numpy as np
-
-    from ncflow.io.files import read_npz_arrays
 
     if not os.path.isfile(path):
         return False
@@ -156,11 +157,6 @@ def make_tissue_file(job: TissueJob) -> dict:
     """Write the tissue of ``job.source`` (the per-machine tissue cache's entry, else fTetWild) to
     ``job.path``; runs on a worker.
     """
-    from ncflow.io.meshes import load_mesh
-    from ncflow.match.inputs import intake
-    from ncflow.match.prepare import source_tissue, working_source
-    from ncflow.tissue import write_tissue_file
-
     _, work = working_source(intake(load_mesh(job.source), "source", job.config)[0], job.config)
     c, info = source_tissue(work, job.config)
     write_tissue_file(job.path, c)
@@ -239,8 +235,6 @@ class PairJob:
 
 def match_pair(job: PairJob) -> dict:
     """Match one pair and write its result and manifest (runs on a worker); returns a few numbers."""
-    from ncflow.match.matcher import Matcher
-
     p = job.pair
     run_dir = Path(job.run_dir)
     try:
@@ -327,8 +321,6 @@ def run_batch(
         InputError: a bad csv, ``out_dir`` unusable, no scheduler at ``scheduler``; before any work.
         KeyboardInterrupt: after writing ``batch.json``.
     """
-    from ncflow import __version__
-
     pairs = read_pairs_csv(pairs_csv, ground_truth=False)
     out = Path(out_dir)
     if out.exists() and not out.is_dir():

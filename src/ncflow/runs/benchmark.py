@@ -50,12 +50,14 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from ncflow import __version__
 from ncflow.config import RESULT_NEUTRAL, Config, ablation_config, config_to_dict
 from ncflow.errors import InputError
 from ncflow.evaluate.aggregate import run_row
 from ncflow.evaluate.report import write_benchmark_report
-from ncflow.evaluate.score import EVALUATION_FILE, EVALUATION_PLOTS
+from ncflow.evaluate.score import EVALUATION_FILE, EVALUATION_PLOTS, evaluate_result, write_evaluation
 from ncflow.io.atomic import atomic_write_text
+from ncflow.match.matcher import Matcher
 from ncflow.runs.batch import MANIFEST_FILE, file_sha256, match_manifest, read_manifest, share_tissues
 from ncflow.runs.cluster import open_client
 from ncflow.runs.engine import Outcome, Task, run_tasks
@@ -166,8 +168,6 @@ def run_manifest(task: RunTask) -> dict:
     file(s) (``identity`` has none), the ground-truth format and the geodesic method (plus the match
     part's inputs, through the run). Equal manifests mean a finished run can be reused.
     """
-    from ncflow import __version__
-
     p = task.pair
     gts = [] if p.gt in (None, "identity") else ([p.gt] if isinstance(p.gt, str) else list(p.gt))
     return {
@@ -197,8 +197,6 @@ def _drop_evaluation(run_dir: Path) -> None:
 
 def _match(task: RunTask) -> None:
     """Run the matcher and write the output contract (atomically) into the run folder."""
-    from ncflow.match.matcher import Matcher
-
     p = task.pair
     result = Matcher(p.source, p.target, p.skeleton, task.config, quiet=True).run()
     result.save(task.run_dir, overwrite=True)
@@ -206,8 +204,6 @@ def _match(task: RunTask) -> None:
 
 def _evaluate(task: RunTask) -> dict:
     """Evaluate the run folder against the pair's ground truth; writes evaluation.json (last) and plots."""
-    from ncflow.evaluate.score import evaluate_result, write_evaluation
-
     p = task.pair
     ev = evaluate_result(task.run_dir, p.source, p.target, p.gt, p.gt_format, geodesic_method=task.geodesic_method)
     return write_evaluation(

@@ -42,6 +42,7 @@ import logging
 import os
 from collections.abc import Callable, Iterator
 
+from ncflow import __version__
 from ncflow.errors import InputError, first_line
 
 CONNECT_TIMEOUT = 5.0
@@ -109,15 +110,12 @@ def quiet_dask(verbose: bool = False) -> Iterator[None]:
 
 
 def _worker_version() -> str:
-    from ncflow import __version__
 
     return __version__
 
 
 def _check_workers(client, address: str, log: Callable[[str], None]) -> int:
     """Refuse workers that run another ncflow version (results would not match their manifests)."""
-    from ncflow import __version__
-
     try:
         versions = client.run(_worker_version, on_error="return")
     except Exception as exc:  # noqa: BLE001 -- any failure to reach the workers is reported, not hidden

@@ -14,6 +14,7 @@ import numpy as np
 from jaxtyping import Float, Int
 
 from ncflow.geometry.skeleton import Skeleton
+from ncflow.geometry.topology import mesh_topology
 from ncflow.geometry.winding import winding_numbers
 
 
@@ -61,8 +62,6 @@ def check_inside_at(
     """:func:`check_inside` at several (surface_tol, far) pairs, the joints' winding numbers and
     distances to the surface measured once (the costly part: every joint against every triangle).
     """
-    from ncflow.geometry.topology import mesh_topology
-
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
     tri = vertices[faces]

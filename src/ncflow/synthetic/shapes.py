@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 from jaxtyping import Float, Int
 
+from ncflow.geometry.mesh import weld_vertices
+
 MeshArrays = tuple[Float[np.ndarray, "V 3"], Int[np.ndarray, "F 3"]]
 
 
@@ -108,8 +110,6 @@ def rounded_box(size: float = 2.0, rounding: float = 0.0, subdivisions: int = 8)
             faces.append(f + offset)
             offset += n * n
     import trimesh
-
-    from ncflow.geometry.mesh import weld_vertices
 
     v, f, _ = weld_vertices(np.concatenate(verts), np.concatenate(faces), tol=1e-9)
     half = size / 2.0

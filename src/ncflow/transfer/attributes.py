@@ -40,6 +40,7 @@ from ncflow.io.ply_properties import PLY_TYPES, PlyVertexProperties, read_ply_ve
 from ncflow.io.result import CONTRACT_FILES, read_result, result_target
 from ncflow.io.vertex_arrays import read_vertex_array, write_vertex_array
 from ncflow.transfer.uv import UVTransfer, transfer_uv
+from ncflow.transfer.weights import transfer_skin_weights
 
 __all__ = [
     "KINDS",
@@ -310,7 +311,7 @@ def _check_out(out: Path, result_dir: Path, overwrite: bool) -> Path:
 def _array_transfer(kind, attributes, n_source, res, result_dir, rule, max_distance, max_normal_angle):
     """(array to write, kind, details) for .npy / .txt attributes."""
     arr = read_vertex_array(attributes, n_source)
-    face, bary, sf = res["map_face"], res["map_bary"], res["source_faces"]
+    face, bary, sf = res.map_face, res.map_bary, res.source_faces
     if kind == "auto":
         kind = "labels" if arr.dtype.kind == "i" else "values"
     details: dict = {"columns": 1 if arr.ndim == 1 else int(arr.shape[1])}
@@ -331,14 +332,13 @@ def _array_transfer(kind, attributes, n_source, res, result_dir, rule, max_dista
             "use --kind values for other arrays",
             attributes,
         )
-    from ncflow.transfer.weights import transfer_skin_weights
 
     tv, tf = result_target(res, None, result_dir)
     weights, reliable = transfer_skin_weights(
         w,
-        res["frames"][0],
+        res.frames[0],
         sf,
-        res["deformed_source"],
+        res.deformed_source,
         tv,
         tf,
         face,
@@ -395,10 +395,10 @@ def transfer(
             raise InputError(f"{option} applies to --kind weights only")
     real_out = _check_out(out, result_dir, overwrite)
     res = read_result(result_dir, check_animation=False)
-    n_source, n_target = res["n_source"], res["n_target"]
+    n_source, n_target = res.n_source, res.n_target
     if target is not None:  # read once, and checked whatever the kind needs
-        res["target_vertices"], res["target_faces"] = result_target(res, target, result_dir, replace=False)
-    sv, sf, face, bary = res["frames"][0], res["source_faces"], res["map_face"], res["map_bary"]
+        res.target_vertices, res.target_faces = result_target(res, target, result_dir, replace=False)
+    sv, sf, face, bary = res.frames[0], res.source_faces, res.map_face, res.map_bary
     if kind in ("auto", "values", "labels", "weights"):
         arr, kind, details = _array_transfer(
             kind, attributes, n_source, res, result_dir, label_rule, max_distance, max_normal_angle
@@ -430,7 +430,7 @@ def transfer(
         landmarks = read_landmarks(attributes, n_source)
         tv, tf = result_target(res, None, result_dir)
         vertex, point = landmark_arrays(landmarks)
-        carried = carry_landmarks(vertex, point, sv, sf, res["deformed_source"], tv, tf)
+        carried = carry_landmarks(vertex, point, sv, sf, res.deformed_source, tv, tf)
         write_landmarks(real_out, _landmark_record(landmarks, carried, n_target))
         details = {
             "landmarks": len(landmarks),

@@ -268,7 +268,7 @@ def rig_result(
         raise InputError(f"the largest reliable distance must be a non-negative fraction, got {max_distance}")
 
     res = read_result(result_dir, check_animation=False)
-    skeleton, sk_frames = res["skeleton_target"], res["skeleton_frames"]
+    skeleton, sk_frames = res.skeleton_target, res.skeleton_frames
     if skeleton is None:
         raise InputError(
             "the result has no skeleton (skeleton_target.tgf, skeleton_frames.json): rig needs a match run "
@@ -277,11 +277,11 @@ def rig_result(
         )
     tv, tf = result_target(res, target, result_dir)
     parents = skeleton.parents
-    names = unique_names(list(sk_frames["names"] or skeleton.names or [None] * skeleton.n_joints))
-    frames = res["frames"]
+    names = unique_names(list(res.joint_names or skeleton.names or [None] * skeleton.n_joints))
+    frames = res.frames
     source = frames[0]
     if source_skin is not None:
-        if sk_frames["names"] is None and skeleton.names is None:
+        if res.joint_names is None and skeleton.names is None:
             raise InputError(
                 "the result's skeleton has no joint names (a TGF skeleton): the skin's joints cannot be matched",
                 Path(result_dir) / "skeleton_frames.json",
@@ -289,19 +289,19 @@ def rig_result(
         w_source = gltf_skin_weights(load_gltf_skin(source_skin), source, names)
         weights_from = "gltf skin"
     else:
-        width = _skinning_width(res["metrics"])
-        w_source = skeleton_weights(source, sk_frames["positions"][0], parents, width)
+        width = _skinning_width(res.metrics)
+        w_source = skeleton_weights(source, sk_frames[0], parents, width)
         weights_from = "skeleton"
     diag = float(np.linalg.norm(np.ptp(tv, axis=0)))
     w_target, reliable = transfer_skin_weights(
         w_source,
         source,
-        res["source_faces"],
-        res["deformed_source"],
+        res.source_faces,
+        res.deformed_source,
         tv,
         tf,
-        res["map_face"],
-        res["map_bary"],
+        res.map_face,
+        res.map_bary,
         max_distance=max_distance * diag,
         max_normal_angle=max_normal_angle,
     )
@@ -309,11 +309,11 @@ def rig_result(
     bind = skeleton.positions
     clip = {}
     if animation:
-        quats, _ = joint_motion(bind, sk_frames["positions"], parents, mesh_frames=frames, vertex_weights=w_source)
-        t = np.asarray(res["frame_times"], dtype=np.float64)
+        quats, _ = joint_motion(bind, sk_frames, parents, mesh_frames=frames, vertex_weights=w_source)
+        t = np.asarray(res.frame_times, dtype=np.float64)
         span = t[-1] - t[0]
         keys = (t - t[0]) * (clip_seconds / span) if span > 0 else t - t[0]
-        clip = {"key_times": keys, "rotations": quats, "root_translations": sk_frames["positions"][:, 0]}
+        clip = {"key_times": keys, "rotations": quats, "root_translations": sk_frames[:, 0]}
     with atomic_path(real) as tmp:
         write_rig_glb(
             tmp,

@@ -31,9 +31,16 @@ from typing import Any
 import numpy as np
 from jaxtyping import Float, Int
 
+from ncflow import __version__
 from ncflow.errors import InputError, NcflowError
+from ncflow.evaluate.metrics import auc, geodesic_errors
+from ncflow.evaluate.plots import source_colors
+from ncflow.geometry.barycentric import surface_points
+from ncflow.geometry.decimate import decimate
 from ncflow.geometry.mesh import Mesh
-from ncflow.io.ground_truth import GroundTruth
+from ncflow.io.atomic import atomic_write_bytes, check_output_file
+from ncflow.io.ground_truth import GroundTruth, load_ground_truth
+from ncflow.io.result import ResultFolder, read_result, result_target
 
 __all__ = [
     "DEFAULT_MAX_DISPLAY_FRAMES",
@@ -156,8 +163,6 @@ def _color_bar(errors: np.ndarray, tau_max: float, n_stops: int = 11) -> dict[st
     """The colour bar of the error map: CSS stops, tick labels, and the summary of the errors."""
     import matplotlib
 
-    from ncflow.evaluate.metrics import auc
-
     rgb = matplotlib.colormaps["turbo"](np.linspace(0.0, 1.0, n_stops))[:, :3]
     stops = ["#{:02x}{:02x}{:02x}".format(*np.rint(c * 255).astype(int)) for c in rgb]
     ticks = [f"{x:.2f}" for x in np.linspace(0.0, tau_max, 5)]
@@ -200,8 +205,6 @@ def geodesic_error_map(
         truth: ground truth for the same target (complete or partial).
         method: the geodesic solver (see :func:`~ncflow.evaluate.metrics.geodesic_errors`).
     """
-    from ncflow.evaluate.metrics import geodesic_errors
-
     ti = np.asarray(truth.target_index, np.int64)
     out = np.full(np.asarray(map_face).shape[0], np.nan)
     out[ti] = geodesic_errors(source, map_face[ti], map_bary[ti], truth.face, truth.bary, method=method)
@@ -219,7 +222,7 @@ def _frame_subset(n_frames: int, max_frames: int) -> np.ndarray:
 
 
 def view_data(
-    result: dict[str, Any],
+    result: ResultFolder,
     *,
     errors: Float[np.ndarray, " Vt"] | None = None,
     tau_max: float = 0.20,
@@ -230,9 +233,7 @@ def view_data(
     """The JSON object the page reads, from a loaded result (:func:`ncflow.io.result.read_result`).
 
     Args:
-        result: with ``frames`` (K, Vs, 3), ``source_faces``, ``frame_times`` (K,), ``map_face``,
-            ``map_bary``, ``target_vertices`` (Vt, 3), ``target_faces`` and ``skeleton_frames``
-            (or None).
+        result: a result folder read back, its ``target_vertices`` and ``target_faces`` set.
         errors: (Vt,) geodesic error per target vertex (NaN: no ground truth), or None.
         tau_max: the top of the error colour scale.
         max_display_vertices: meshes with more vertices are decimated to about this many.
@@ -249,18 +250,14 @@ def view_data(
         positions normalised to [0, 1] per axis (uint16 of 65535), read on the target at the point
         each target vertex maps to.
     """
-    from ncflow.evaluate.plots import source_colors
-    from ncflow.geometry.barycentric import surface_points
-    from ncflow.geometry.decimate import decimate
-
-    frames = np.asarray(result["frames"], np.float64)
-    faces = np.asarray(result["source_faces"], np.int64)
-    tv = np.asarray(result["target_vertices"], np.float64)
-    tf = np.asarray(result["target_faces"], np.int64)
+    frames = np.asarray(result.frames, np.float64)
+    faces = np.asarray(result.source_faces, np.int64)
+    tv = np.asarray(result.target_vertices, np.float64)
+    tf = np.asarray(result.target_faces, np.int64)
     pick = _frame_subset(frames.shape[0], max_display_frames)
     rest = frames[0]
     ref = source_colors(rest)  # positions in [0, 1] per axis: the colour and checker coordinates
-    target_ref = np.clip(surface_points(ref, faces, result["map_face"], result["map_bary"]), 0.0, 1.0)
+    target_ref = np.clip(surface_points(ref, faces, result.map_face, result.map_bary), 0.0, 1.0)
     src = decimate(rest, faces, max_display_vertices)
     tgt = decimate(tv, tf, max_display_vertices)
     shown = frames[pick][:, src.kept]
@@ -270,7 +267,7 @@ def view_data(
     data: dict[str, Any] = {
         "format": VIEW_FORMAT,
         "title": title or "",
-        "times": [float(t) for t in np.asarray(result["frame_times"], np.float64)[pick]],
+        "times": [float(t) for t in np.asarray(result.frame_times, np.float64)[pick]],
         "bbox": {"min": [float(x) for x in lo], "max": [float(x) for x in hi]},
         "aspect": [float(x) for x in extent / max(float(extent.max()), 1e-300)],
         "frames": encode_array(quantize_positions(shown, lo, hi).transpose(0, 2, 1), "uint16", delta=True),
@@ -292,11 +289,10 @@ def view_data(
         "skeleton": None,
         "error": None,
     }
-    sk = result.get("skeleton_frames")
-    if sk is not None:
+    if result.skeleton_frames is not None:
         data["skeleton"] = {
-            "parents": [int(p) for p in sk["parents"]],
-            "positions": encode_array(np.asarray(sk["positions"])[pick], "float32"),
+            "parents": [int(p) for p in result.skeleton_target.parents],
+            "positions": encode_array(np.asarray(result.skeleton_frames)[pick], "float32"),
         }
     if errors is not None:
         e = np.asarray(errors, np.float64)
@@ -335,8 +331,6 @@ def render_page(data: dict[str, Any], script: str) -> str:
     Raises:
         ValueError: ``script`` would end its ``<script>`` element early.
     """
-    from ncflow import __version__
-
     if "</script" in script.lower():
         raise ValueError("the viewer script contains '</script' and cannot be inlined")
     title = html.escape(data.get("title") or "result").encode("ascii", "xmlcharrefreplace").decode("ascii")
@@ -361,8 +355,6 @@ def check_view_output(path: str | os.PathLike, overwrite: bool = False) -> Path:
     Raises:
         InputError: one line naming the path (also those of :func:`ncflow.io.atomic.check_output_file`).
     """
-    from ncflow.io.atomic import check_output_file
-
     real = check_output_file(path, option="--out")
     if real.exists() and not overwrite:
         try:
@@ -425,25 +417,21 @@ def write_view(
         InputError: one line naming the file: a broken result folder, no target mesh, a target or
             ground truth that does not fit the result, an unusable output path. Nothing is written.
     """
-    from ncflow.io.atomic import atomic_write_bytes
-    from ncflow.io.ground_truth import load_ground_truth
-    from ncflow.io.result import read_result, result_target
-
     result_dir = Path(result_dir)
     _check_budget(max_display_vertices, "the vertex budget (--max-vertices)", 100)
     _check_budget(max_display_frames, "the frame budget (--max-frames)", 2)
     out = check_view_output(result_dir / "view.html" if out_html is None else out_html, overwrite)
     result = read_result(result_dir, check_animation=False)
-    _check_barycentric(result["map_bary"], result_dir / "map_tgt_to_src.npz")
-    result["target_vertices"], result["target_faces"] = result_target(result, target, result_dir)
+    _check_barycentric(result.map_bary, result_dir / "map_tgt_to_src.npz")
+    result.target_vertices, result.target_faces = result_target(result, target, result_dir)
     errors = None
     if gt is not None:
-        source = Mesh(result["frames"][0], result["source_faces"], name=str(result_dir / "frames" / "frame_0000.ply"))
-        tmesh = Mesh(result["target_vertices"], result["target_faces"], name=str(target or result_dir / "target.ply"))
+        source = Mesh(result.frames[0], result.source_faces, name=str(result_dir / "frames" / "frame_0000.ply"))
+        tmesh = Mesh(result.target_vertices, result.target_faces, name=str(target or result_dir / "target.ply"))
         truth = load_ground_truth(gt, source, tmesh, gt_format)
         if truth.n_target != tmesh.n_vertices:
             raise InputError(f"is for {truth.n_target} target vertices, the target has {tmesh.n_vertices}", truth.name)
-        errors = geodesic_error_map(source, result["map_face"], result["map_bary"], truth, method=geodesic_method)
+        errors = geodesic_error_map(source, result.map_face, result.map_bary, truth, method=geodesic_method)
     data = view_data(
         result,
         errors=errors,

@@ -50,6 +50,7 @@ import numpy as np
 from jaxtyping import Float, Int
 
 from ncflow.errors import InputError
+from ncflow.geometry.mesh import Mesh, weld_vertices
 from ncflow.geometry.rigid import forward_kinematics, sparse_linear_blend_skinning, trs_matrix
 from ncflow.geometry.skeleton import MAX_JOINTS, Skeleton, _default_labels, merge_zero_length_bones
 from ncflow.io.files import short_repr
@@ -92,8 +93,6 @@ class PosedMesh:
 
     def to_mesh(self, name: str | None = None):
         """The surface as an :class:`ncflow.geometry.mesh.Mesh`."""
-        from ncflow.geometry.mesh import Mesh
-
         return Mesh(vertices=self.vertices, faces=self.faces, name=name, file_index=self.file_index)
 
 
@@ -255,8 +254,6 @@ class GltfSkin:
         faces = self.faces
         file_index = np.arange(self.positions.shape[0])
         if weld:
-            from ncflow.geometry.mesh import weld_vertices
-
             _, faces, file_index = weld_vertices(self.positions, self.faces)
             posed = posed[file_index]
             keep = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 2] != faces[:, 0])
