@@ -58,7 +58,7 @@ PAIRS = {"demo": demo_pair, "mano": mano_pair}
 
 def run(name: str, cfg) -> dict:
     from ncflow.evaluate import evaluate_correspondence
-    from ncflow.match.matcher import Matcher
+    from ncflow.matcher.steps import Matcher
 
     src, tgt, skel, gt = PAIRS[name]()
     t0 = time.perf_counter()

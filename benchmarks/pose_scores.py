@@ -29,9 +29,10 @@ def main() -> None:
 
     from ncflow.config import preset, validate_config
     from ncflow.flow.skinning import skinning_weights
-    from ncflow.match.placement import surface_diracs
-    from ncflow.match.pose_search import _skinned
-    from ncflow.match.prepare import prepare, skinning_width
+    from ncflow.matcher.place import place
+    from ncflow.matcher.placement import surface_diracs
+    from ncflow.matcher.pose_scorer import skinned
+    from ncflow.matcher.prepare import prepare, skinning_width
     from ncflow.measures.varifold import varifold_inner
     from ncflow.skeleton import load_skeleton
     from ncflow.skeleton.kinematics import Pose, forward_kinematics, joint_positions
@@ -55,8 +56,9 @@ def main() -> None:
     def one(name):
         p = root / name / "pair_000"
         prob = prepare(p / "source.ply", p / "target.ply", p / "source_skeleton.tgf", cfg)
+        placed = place(prob, cfg)
         sk = prob.skeleton_normalized
-        truth = prob.placement.apply(prob.normalization.apply(load_skeleton(p / "target_skeleton.tgf").positions))
+        truth = placed.placement.apply(prob.normalization.apply(load_skeleton(p / "target_skeleton.tgf").positions))
         truth = jnp.asarray(truth, jnp.float32)
 
         def joint_loss(pose):
@@ -65,14 +67,14 @@ def main() -> None:
         x = surface_diracs(prob.working.vertices, prob.working.faces, 1200, 4)
         pos, bones = jnp.asarray(sk.positions, jnp.float32), np.asarray(sk.bones)
         w = skinning_weights(x.centers, pos[bones[:, 0]], pos[bones[:, 1]], skinning_width(cfg, sk))
-        y = surface_diracs(prob.target_vertices, np.asarray(prob.target.faces), 1200, 5)
+        y = surface_diracs(placed.placement.apply(prob.target_vertices), np.asarray(prob.target_faces), 1200, 5)
 
         def varifold(pose, s):
-            xs = _skinned(sk, w.astype(jnp.float32), x, pose)
+            xs = skinned(sk, w.astype(jnp.float32), x, pose)
             yy = varifold_inner(y, y, s, 0.5)
             return (varifold_inner(xs, xs, s, 0.5) - 2 * varifold_inner(xs, y, s, 0.5) + yy) / yy
 
-        found = prob.pose_search.pose
+        found = placed.pose_search.pose
         true = jax.jit(lambda q: descend(joint_loss, q, 3000))(found)
         refined = jax.jit(
             lambda q: descend(lambda r: varifold(r, 0.15), descend(lambda r: varifold(r, 0.3), q, 100), 100)
@@ -81,7 +83,7 @@ def main() -> None:
             rms = float(jnp.sqrt(joint_loss(pose) / sk.n_joints))
             row = [f"{name} {label}: joint rms {rms:.3f}"]
             row += [f"V{s} {float(varifold(pose, s)):.4f}" for s in (0.3, 0.15, 0.08)]
-            xs = _skinned(sk, w.astype(jnp.float32), x, pose)
+            xs = skinned(sk, w.astype(jnp.float32), x, pose)
             a, b = xs.weights / xs.weights.sum(), y.weights / y.weights.sum()
             for eps in (1e-2, 1e-3):
                 for nw in (0.0, 0.2):

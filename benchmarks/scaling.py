@@ -37,7 +37,7 @@ def resolution_for(n_vertices: int) -> float:
 def one(size: int, preset_name: str, overrides: list[str]) -> dict:
     from ncflow.config import apply_overrides, preset
     from ncflow.evaluate import evaluate_correspondence
-    from ncflow.match.matcher import Matcher
+    from ncflow.matcher.steps import Matcher
     from ncflow.synthetic.pairs import make_pair
 
     r = resolution_for(size)

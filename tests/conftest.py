@@ -12,8 +12,9 @@ of float32 behaviour pass float32 arrays.
 import os
 import re
 
-# JAX reads its handling of closed-over arrays when it is imported: `import ncflow` sets it for users
-# (ncflow.jit.cache.SHARE_SETTINGS, checked equal in test_cache.py), but jaxtyping's hook imports JAX first
+# closed-over arrays as arguments of compiled programs: a match sets this when it runs
+# (ncflow.jit.cache.share_executables, SHARE_SETTINGS); set here for the whole run, so that the programs of
+# tests that run no match compile as a match's would (checked in test_cache.py)
 os.environ.setdefault("JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS", "true")
 os.environ.setdefault("JAX_EMBEDDED_CONSTANTS_MAX_BYTES", "0")
 

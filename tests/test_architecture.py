@@ -5,7 +5,7 @@
    imports are resolved, and each import of another ncflow package must respect the layers
 
        geometry (0) <- io (1) <- jit (2) <- {measures, skeleton, flow, tissue, losses, optim, config} (3)
-                    <- {match, synthetic} (4) <- evaluate (5) <- {view, transfer, runs} (6) <- cli (7)
+                    <- {matcher, synthetic} (4) <- evaluate (5) <- {view, transfer, runs} (6) <- cli (7)
 
    A package imports only packages of lower layers; packages of one layer do not import each other except
    the few edges of ``SAME_LAYER_ALLOWED`` (each with its reason). ``synthetic`` imports only geometry, io,
@@ -44,7 +44,7 @@ LAYERS = {
     "losses": 3,
     "optim": 3,
     "config": 3,
-    "match": 4,
+    "matcher": 4,
     "synthetic": 4,
     "evaluate": 5,
     "view": 6,
@@ -212,7 +212,7 @@ def test_scan_sees_function_local_and_type_checking_imports(tmp_path, monkeypatc
     (fake / "geometry" / "mesh.py").write_text(
         "from typing import TYPE_CHECKING\n"
         "if TYPE_CHECKING:\n"
-        "    from ncflow.match import matcher\n"
+        "    from ncflow.matcher import steps\n"
         "def f():\n"
         "    from ..cli import main\n"
         "    from ncflow import errors, __version__, Mesh\n"
@@ -223,7 +223,7 @@ def test_scan_sees_function_local_and_type_checking_imports(tmp_path, monkeypatc
     monkeypatch.setattr(sys.modules[__name__], "PACKAGE", fake)
     got = {(imp.line, imp.target, imp.name) for imp in collect_imports()}
     assert got == {
-        (3, "ncflow.match", None),  # `matcher` is no file of the fake tree, so the package is the target
+        (3, "ncflow.matcher", None),  # `steps` is no file of the fake tree, so the package is the target
         (5, "ncflow.cli", None),
         (6, "ncflow.errors", None),
         (6, "ncflow", "__version__"),
@@ -233,7 +233,7 @@ def test_scan_sees_function_local_and_type_checking_imports(tmp_path, monkeypatc
     verdicts = {(imp.line, imp.name): rule_violation(imp) for imp in collect_imports()}
     assert verdicts[6, None] is None and verdicts[6, "__version__"] is None  # errors, and the version
     assert "root package" in verdicts[6, "Mesh"]
-    assert "`geometry` (layer 0) imports `match` (layer 4)" in verdicts[3, None]
+    assert "`geometry` (layer 0) imports `matcher` (layer 4)" in verdicts[3, None]
     assert "`geometry` (layer 0) imports `cli` (layer 7)" in verdicts[5, None]
     assert "`geometry` (layer 0) imports `io` (layer 1)" in verdicts[8, None]
 

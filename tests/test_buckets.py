@@ -98,11 +98,11 @@ def test_padded_training_objective_equals_the_unpadded_one():
     import equinox as eqx
 
     from ncflow.geometry.mesh import Mesh
-    from ncflow.match.objective import Arrays, Settings
-    from ncflow.match.prepare import DTYPE, prepare
-    from ncflow.match.stages import build_stages
-    from ncflow.match.targets import target_measures
-    from ncflow.match.train import init_params
+    from ncflow.matcher.objective import Arrays, Settings
+    from ncflow.matcher.prepare import DTYPE, prepare
+    from ncflow.matcher.stages import build_stages
+    from ncflow.matcher.targets import target_measures
+    from ncflow.matcher.train import init_params
     from ncflow.skeleton import Skeleton
     from ncflow.synthetic.shapes import bend
     from test_objective import _config, stage_objective

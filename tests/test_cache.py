@@ -1,5 +1,6 @@
 """ncflow's cache folder and JAX's persistent compilation cache (issue 17)."""
 
+import json
 import os
 import subprocess
 import sys
@@ -70,8 +71,37 @@ def test_the_tests_run_with_the_jax_settings_users_get():
 
     from ncflow.jit.cache import SHARE_SETTINGS, share_executables
 
-    assert all(os.environ.get(k) == v for k, v in SHARE_SETTINGS.items())
+    assert all(os.environ.get(k) == str(v).lower() for k, v in SHARE_SETTINGS.items())
     assert share_executables() and jax.config.jax_embedded_constants_max_bytes == 0
+
+
+IMPORT_ONLY = textwrap.dedent(
+    """
+    import json, os, sys
+    import jax
+    before = {k: jax.config.values.get(k) for k in sorted(jax.config.values) if k.startswith("jax_")}
+    environ = dict(os.environ)
+    import ncflow, ncflow.cli, ncflow.runs
+    after = {k: jax.config.values.get(k) for k in before}
+    changed = sorted(k for k in before if before[k] != after[k])
+    print(json.dumps({"changed": changed, "environ": sorted(set(os.environ.items()) ^ set(environ.items()))}))
+    from ncflow.matcher.steps import apply_runtime_settings
+    from ncflow.config import apply_overrides, preset
+    apply_runtime_settings(apply_overrides(preset("fast"), ["jit_cache=none"]))
+    print(json.dumps({k: jax.config.values.get(k) for k in ("jax_use_simplified_jaxpr_constants",
+                                                            "jax_embedded_constants_max_bytes")}))
+    """
+)
+
+
+def test_importing_ncflow_sets_nothing_and_a_match_applies_its_settings(tmp_path):
+    env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_")}
+    out = subprocess.run(
+        [sys.executable, "-c", IMPORT_ONLY], capture_output=True, text=True, env=env, check=True
+    ).stdout.splitlines()
+    imported, applied = json.loads(out[-2]), json.loads(out[-1])
+    assert imported == {"changed": [], "environ": []}
+    assert applied == {"jax_use_simplified_jaxpr_constants": True, "jax_embedded_constants_max_bytes": 0}
 
 
 @pytest.mark.parametrize("per_octave", [1, 2, 4])
@@ -99,11 +129,11 @@ SHARED = textwrap.dedent(
     """
     import os, sys
     import numpy as np
-    import ncflow  # first, as a user would: compiled programs take their arrays as arguments
+    import ncflow
     from ncflow.jit.cache import share_executables
     from ncflow.config import apply_overrides, preset, scale_steps
     from ncflow.geometry.mesh import Mesh
-    from ncflow.match import Matcher
+    from ncflow.matcher import Matcher
     from ncflow.skeleton import Skeleton
     from ncflow.synthetic.shapes import bend, capsule
 
@@ -123,7 +153,7 @@ SHARED = textwrap.dedent(
         skel = Skeleton.from_arrays(np.array([[0, 0, -ends], [0, 0, joint], [0, 0, ends]]), np.array([-1, 0, 1]))
         m = Matcher(Mesh(vs, fs, "source"), Mesh(bend(vs, angle), fs, "target"), skel, cfg, quiet=True)
         m.run()
-        print("MODE", m.problem.skinning_weights["mode"])
+        print("MODE", m.setup.skinning_weights["mode"])
         print("STEPS", sorted(f for f in os.listdir(folder) if f.startswith("jit_step-")))
         print("OUTPUTS", sorted(f for f in os.listdir(folder) if f.startswith("jit_output_")))
         target = ("jit_target_measure-", "jit_kernel_matvec-", "jit_kernel_self_sum-")

@@ -14,7 +14,7 @@ from ncflow.evaluate.score import EVALUATION_FILE
 from ncflow.io.arrays import json_safe
 from ncflow.io.meshes import save_mesh
 from ncflow.io.result import ResultFolder, write_result
-from ncflow.match.correspondence import correspondence_maps
+from ncflow.matcher.correspondence import correspondence_maps
 from ncflow.synthetic.shapes import capsule
 
 EPS = 3e-4

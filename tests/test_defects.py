@@ -15,7 +15,7 @@ from ncflow.geometry.mesh import Mesh
 from ncflow.geometry.repair import check_repaired
 from ncflow.io.meshes import load_mesh, save_mesh
 from ncflow.io.result import read_result
-from ncflow.match.prepare import prepare
+from ncflow.matcher.prepare import prepare
 from ncflow.skeleton import Skeleton, save_skeleton
 from ncflow.synthetic.defects import DEFECTS, add_defects, defective_mesh
 from ncflow.synthetic.pairs import make_pair

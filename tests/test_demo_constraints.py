@@ -7,7 +7,7 @@ The default suite checks the same machinery on the small capsule pair (tests/tes
 import pytest
 
 from ncflow.config import apply_overrides, preset
-from ncflow.match.matcher import match
+from ncflow.matcher.steps import match
 from ncflow.synthetic.pairs import make_pair
 
 pytestmark = pytest.mark.slow

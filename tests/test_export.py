@@ -22,7 +22,7 @@ from ncflow.io.frames import read_skeleton_frames_json, write_frames, write_skel
 from ncflow.io.gltf.writer import write_animation_glb
 from ncflow.io.meshes import load_mesh
 from ncflow.io.result import CONTRACT_FILES, ResultFolder, read_result, write_result
-from ncflow.match.correspondence import correspondence_maps
+from ncflow.matcher.correspondence import correspondence_maps
 from ncflow.skeleton import Skeleton, load_skeleton
 
 

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from ncflow.match.guard import DivergenceGuard
+from ncflow.matcher.guard import DivergenceGuard
 
 
 def _feed(guard, values, start=0):

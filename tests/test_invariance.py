@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 from ncflow.config import apply_overrides, preset, scale_steps
 from ncflow.evaluate import auc, closest_points_on_surface, geodesic_errors
 from ncflow.geometry.mesh import Mesh
-from ncflow.match.matcher import match
+from ncflow.matcher.steps import match
 from ncflow.synthetic.pairs import make_pair
 
 

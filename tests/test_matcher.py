@@ -14,9 +14,9 @@ from ncflow.geometry.mesh import Mesh
 from ncflow.geometry.overlap import self_overlap
 from ncflow.io.meshes import save_mesh
 from ncflow.io.result import read_result
-from ncflow.match.inputs import check_precision, check_sizes, load_inputs, size_ratio
-from ncflow.match.matcher import Matcher, match
-from ncflow.match.prepare import prepare
+from ncflow.matcher.inputs import check_precision, check_sizes, load_inputs, size_ratio
+from ncflow.matcher.prepare import prepare
+from ncflow.matcher.steps import Matcher, match
 from ncflow.skeleton import Skeleton, save_skeleton
 from ncflow.synthetic.shapes import bend, capsule
 
@@ -328,7 +328,7 @@ def test_nan_during_training_is_reported_not_written(tmp_path, pair):
     src, tgt, skel, *_ = pair
     cfg = small_config(steps=(3, 0), placement="none", pose_search="false")  # the training is what is tested
     cfg = dataclasses.replace(cfg, phases=tuple(dataclasses.replace(p, lr=1e30) for p in cfg.phases))
-    from ncflow.match.matcher import TrainingError
+    from ncflow.matcher.steps import TrainingError
 
     with pytest.raises(TrainingError, match="non-finite"):
         Matcher(src, tgt, skel, cfg, quiet=True).run()
@@ -373,7 +373,8 @@ def test_output_motion_is_the_flow_of_the_source_and_of_fresh_bone_samples(pair,
     import jax.numpy as jnp
 
     from ncflow.flow import flow_points
-    from ncflow.match.result import FINAL_BONE_SAMPLES, output_motion
+    from ncflow.matcher.programs import FINAL_BONE_SAMPLES, output_flow_program
+    from ncflow.matcher.result import output_motion
     from ncflow.skeleton import sample_bones
 
     src, _, skel, *_ = pair
@@ -381,7 +382,8 @@ def test_output_motion_is_the_flow_of_the_source_and_of_fresh_bone_samples(pair,
     points = 0.3 * src.vertices[:101]  # any points: the field is defined everywhere (an odd count: padded)
     times = np.array([0.0, 0.3, 0.5, 1.0])
     key = jax.random.key(3)
-    frames, bones, states = output_motion(r.field, points, times, r.n_times, skel, None, key)
+    program = output_flow_program(skel, None, r.n_times)
+    frames, bones, states = output_motion(r.field, points, times, r.n_times, skel, None, key, program)
     expected = sample_bones(skel, key, FINAL_BONE_SAMPLES, dtype=np.float32).points
     np.testing.assert_allclose(np.asarray(bones), np.asarray(expected), atol=1e-6)  # compiled apart: rounding
     assert frames.shape == (4, 101, 3) and states.shape == (r.n_times, skel.n_bones, FINAL_BONE_SAMPLES, 3)

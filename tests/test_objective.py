@@ -1,4 +1,4 @@
-"""The objective and the training step that the matcher runs (ncflow.match.objective / train).
+"""The objective and the training step that the matcher runs (ncflow.matcher.objective / train).
 
 The step must be exactly: objective (losses + tissue + optim.mdmm) → the configured optimiser with the pose's
 learning rate scaled through optax.multi_transform → the sign ascent of optim.mdmm on the multipliers.
@@ -14,11 +14,11 @@ import pytest
 
 from ncflow.config import apply_overrides, preset, validate_config
 from ncflow.geometry.mesh import Mesh
-from ncflow.match.objective import Arrays, Settings, constraint_term, objective
-from ncflow.match.prepare import DTYPE, prepare
-from ncflow.match.stages import build_stages
-from ncflow.match.targets import target_measures
-from ncflow.match.train import build_optimizer, init_params, make_step, parameter_labels
+from ncflow.matcher.objective import Arrays, Settings, constraint_term, objective
+from ncflow.matcher.prepare import DTYPE, prepare
+from ncflow.matcher.stages import build_stages
+from ncflow.matcher.targets import target_measures
+from ncflow.matcher.train import build_optimizer, init_params, make_step, parameter_labels
 from ncflow.optim.mdmm import ascend_multipliers, multiplier_rate
 from ncflow.skeleton import Skeleton
 from ncflow.skeleton.kinematics import rest_pose

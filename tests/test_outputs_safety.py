@@ -18,7 +18,7 @@ import pytest
 
 import ncflow.io.atomic as atomic
 import ncflow.io.result as export
-import ncflow.match.matcher as matcher_module
+import ncflow.matcher.steps as matcher_module
 import ncflow.runs.benchmark as bench
 import ncflow.synthetic.pairs as pairs_module
 from ncflow.cli import main

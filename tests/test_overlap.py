@@ -8,7 +8,7 @@ import trimesh
 
 from ncflow.config import apply_overrides, preset
 from ncflow.geometry.overlap import DEFAULT_OFFSET, self_overlap
-from ncflow.match.prepare import AUTO_OVERLAP, skinning_weight_mode
+from ncflow.matcher.prepare import AUTO_OVERLAP, skinning_weight_mode
 
 
 def _box(lo, hi, subdivisions=3):

@@ -1,11 +1,11 @@
-"""Rigid placement of the target (ncflow.match.placement): any rotation, exact identity when in place."""
+"""Rigid placement of the target (ncflow.matcher.placement): any rotation, exact identity when in place."""
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
 from ncflow.geometry.normalize import fit_normalization
-from ncflow.match.placement import Placement, candidate_rotations, place_target, surface_diracs
+from ncflow.matcher.placement import Placement, candidate_rotations, place_target, surface_diracs
 from ncflow.synthetic.pairs import make_pair
 
 
@@ -86,7 +86,7 @@ def test_placement_setting_values():
 def test_placement_candidates_start_with_the_target_as_given_and_include_the_true_turn(pair):
     """The articulated search chooses among these: the identity must be there exactly (a standing
     figure must not be turned by its swung limbs), and so must the inverse of a real turn."""
-    from ncflow.match.placement import placement_candidates
+    from ncflow.matcher.placement import placement_candidates
 
     s, fs, t, ft = pair
     axis = np.array([0.3, 0.8, -0.5]) / np.linalg.norm([0.3, 0.8, -0.5])
@@ -111,7 +111,7 @@ def test_placement_candidates_start_with_the_target_as_given_and_include_the_tru
 def test_placement_candidates_leave_out_poor_rigid_fits(pair):
     """Refined fits scoring below ``min_relative_score`` × the best are not worth a pose search; the
     target as given is always kept."""
-    from ncflow.match.placement import placement_candidates
+    from ncflow.matcher.placement import placement_candidates
 
     s, fs, t, ft = pair
     every = placement_candidates(s, fs, t, ft, count=6, min_relative_score=0.0)

@@ -7,7 +7,7 @@ from scipy.spatial.transform import Rotation
 
 from ncflow.flow import time_grid
 from ncflow.losses import bone_constraints
-from ncflow.match.pose_fit import constraint_fit_weights, fit_pose
+from ncflow.matcher.pose_fit import constraint_fit_weights, fit_pose
 from ncflow.skeleton import Skeleton, rigid_reference, sample_bones
 from ncflow.skeleton.kinematics import Pose, rest_pose
 

@@ -1,4 +1,4 @@
-"""Articulated initialisation (ncflow.match.pose_search): search, not descent, for the target's pose."""
+"""Articulated initialisation (ncflow.matcher.pose_search): search, not descent, for the target's pose."""
 
 import functools
 
@@ -9,8 +9,8 @@ from scipy.spatial.transform import Rotation
 
 from ncflow.flow.skinning import skinning_weights
 from ncflow.geometry.normalize import fit_normalization
-from ncflow.match.pose_hypotheses import chain_hypotheses, exchangeable_limbs, exchanged, joint_hypotheses
-from ncflow.match.pose_search import best_distinct, moving_diracs, search_pose, search_poses
+from ncflow.matcher.pose_hypotheses import chain_hypotheses, exchangeable_limbs, exchanged, joint_hypotheses
+from ncflow.matcher.pose_search import best_distinct, moving_diracs, search_pose, search_poses
 from ncflow.skeleton import Skeleton
 from ncflow.skeleton.kinematics import Pose, forward_kinematics, joint_positions
 from ncflow.synthetic.shapes import bend, capsule

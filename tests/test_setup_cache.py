@@ -5,8 +5,8 @@ import dataclasses
 import numpy as np
 import pytest
 
+import ncflow.matcher.place as prep
 from ncflow.config import apply_overrides, preset
-from ncflow.match import prepare as prep
 from ncflow.skeleton import Skeleton
 from ncflow.synthetic.shapes import bend, capsule
 

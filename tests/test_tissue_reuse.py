@@ -92,7 +92,7 @@ def test_prepare_uses_the_given_tissue_exactly(tmp_path, surface):
 
     from ncflow.config import preset
     from ncflow.geometry.mesh import Mesh
-    from ncflow.match.prepare import prepare
+    from ncflow.matcher.prepare import prepare
     from ncflow.skeleton import Skeleton
 
     v, f = surface

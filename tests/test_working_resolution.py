@@ -7,7 +7,7 @@ from scipy.spatial import cKDTree
 
 from ncflow.geometry.decimate import decimate
 from ncflow.geometry.mesh import Mesh
-from ncflow.match.matcher import Matcher
+from ncflow.matcher.steps import Matcher
 from ncflow.skeleton import Skeleton
 from ncflow.synthetic.shapes import bend, capsule
 from test_matcher import small_config
@@ -58,10 +58,10 @@ def result():
 
 def test_outputs_are_at_full_resolution_and_consistent_with_the_full_meshes(result):
     m, res = result
-    src, tgt = m.problem.source, m.problem.target
-    assert m.problem.working.vertices.shape[0] < 0.35 * src.n_vertices
+    src, tgt = m.setup.source, m.setup.target
+    assert m.setup.working.vertices.shape[0] < 0.35 * src.n_vertices
     assert res.metrics["n_source_vertices"] == src.n_vertices
-    assert res.metrics["n_working_vertices"] == m.problem.working.vertices.shape[0]
+    assert res.metrics["n_working_vertices"] == m.setup.working.vertices.shape[0]
     maps = res.maps
     assert maps["p2p_src_to_tgt"].shape == (src.n_vertices,)
     assert maps["p2p_tgt_to_src"].shape == (tgt.n_vertices,)
@@ -69,11 +69,11 @@ def test_outputs_are_at_full_resolution_and_consistent_with_the_full_meshes(resu
     assert maps["p2p_src_to_tgt"].max() < tgt.n_vertices and maps["p2p_tgt_to_src"].max() < src.n_vertices
     assert maps["map_face"].max() < src.faces.shape[0]
     # the (face, bary) map names points of the full-resolution rest source (normalised coordinates)
-    pts = np.einsum("nk,nkd->nd", maps["map_bary"], m.problem.source_vertices[src.faces[maps["map_face"]]])
+    pts = np.einsum("nk,nkd->nd", maps["map_bary"], m.setup.source_vertices[src.faces[maps["map_face"]]])
     np.testing.assert_allclose(pts, maps["map_points"], atol=1e-9)
     # and the foot points lie on the full-resolution flowed source: each target vertex is that far
     flowed = np.einsum("nk,nkd->nd", maps["map_bary"], res.deformed_source[src.faces[maps["map_face"]]])
-    d = np.linalg.norm(flowed - tgt.vertices, axis=1) * m.problem.normalization.scale
+    d = np.linalg.norm(flowed - tgt.vertices, axis=1) * m.setup.normalization.scale
     np.testing.assert_allclose(d, maps["dist_tgt_to_src"] * 1.0, rtol=1e-6, atol=1e-6)
     assert res.frames.shape == (5, src.n_vertices, 3) and np.all(np.isfinite(res.frames))
 
@@ -82,8 +82,8 @@ def test_full_flow_reproduces_the_working_flow_at_shared_vertices(result):
     """The field is trained on the working vertices; flowed at full resolution, the vertices the two
     meshes share land exactly where the working mesh's do."""
     m, res = result
-    kept = m.problem.working.kept
-    working_user = m.problem.normalization.invert(m.problem.working.vertices)
-    np.testing.assert_allclose(working_user, m.problem.source.vertices[kept], atol=1e-12)
+    kept = m.setup.working.kept
+    working_user = m.setup.normalization.invert(m.setup.working.vertices)
+    np.testing.assert_allclose(working_user, m.setup.source.vertices[kept], atol=1e-12)
     np.testing.assert_allclose(res.flow(working_user), res.deformed_source[kept], atol=1e-5)
-    assert np.linalg.norm(res.deformed_source - m.problem.source.vertices, axis=1).max() > 0.3  # it moved
+    assert np.linalg.norm(res.deformed_source - m.setup.source.vertices, axis=1).max() > 0.3  # it moved

@@ -1,16 +1,14 @@
 """ncflow: correspondence-free matching and interpolation of articulated 3D shapes.
 
-A small public surface; everything else lives in the submodules (``ncflow.measures``,
-``ncflow.skeleton``, ``ncflow.flow``, ``ncflow.evaluate``, ...).
+A small public surface (:data:`__all__`, pinned by ``tests/test_public_api.py``); everything else lives
+in the submodules (``ncflow.measures``, ``ncflow.skeleton``, ``ncflow.flow``, ``ncflow.evaluate``, ...).
+``ncflow.match`` is the matching function; its steps are the modules of the package of the same name
+(``from ncflow.matcher.prepare import prepare``). Importing ncflow sets nothing in JAX: a match applies its
+settings when it runs (:func:`ncflow.matcher.steps.apply_runtime_settings`).
 """
 
-__version__ = "0.1.0"
+__version__ = "0.3.0"
 
-from ncflow.jit.cache import share_executables
-
-share_executables()  # before anything imports JAX: compiled programs take their arrays as arguments
-
-from ncflow import match
 from ncflow.config import Config, load_config, preset
 from ncflow.errors import InputError, NcflowError
 from ncflow.geometry.mesh import Mesh
@@ -18,7 +16,7 @@ from ncflow.geometry.normalize import fit_normalization
 from ncflow.geometry.topology import mesh_topology
 from ncflow.io.meshes import load_mesh, save_mesh
 from ncflow.io.result import read_result
-from ncflow.match import Matcher, MatchResult, TrainingError
+from ncflow.matcher import Matcher, MatchResult, TrainingError, match
 from ncflow.measures import (
     compress_normal_cycle,
     compress_varifold,

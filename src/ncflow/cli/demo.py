@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ncflow.evaluate import auc, geodesic_errors
     from ncflow.io.atomic import atomic_write_text, move_into_place, remove_tree, staging_dir
-    from ncflow.match.matcher import Matcher
+    from ncflow.matcher.steps import Matcher
     from ncflow.synthetic.pairs import PAIR_FILES, make_pair, write_pair
     from ncflow.view.page import write_view
 

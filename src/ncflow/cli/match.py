@@ -28,7 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ncflow.match.matcher import Matcher
+    from ncflow.matcher.steps import Matcher
 
     cfg = config_from_args(args)
     # --out checked (and a symbolic link resolved) before any work

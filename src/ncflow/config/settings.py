@@ -99,7 +99,7 @@ class FlowConfig:
     place: a flow of space, a diffeomorphism), ``"start"`` (its starting place: limbs can meet and
     pass through each other, as the fingertips and palm of captured fists do) or ``"auto"``
     (``"start"`` when the target passes through itself over more of its area than the source does,
-    :func:`ncflow.match.prepare.skinning_weight_mode`);
+    :func:`ncflow.matcher.prepare.skinning_weight_mode`);
     ``pose_lr_scale`` multiplies the learning rate of that pose (its quaternions take sign-like
     steps of about lr each, too slow for a 100° joint in a few hundred steps at the flow's rate).
     """
@@ -258,9 +258,9 @@ class Config:
     last stage ends with the violation above 5× this multiple of an earlier stage end's keeps
     that earlier end (``match.guard.DivergenceGuard``).
     ``placement`` (``auto`` | ``none``): move the target rigidly onto the source before matching
-    (any rotation; :mod:`ncflow.match.placement`), outputs moved back; ``none`` trusts the input
+    (any rotation; :mod:`ncflow.matcher.placement`), outputs moved back; ``none`` trusts the input
     placement. ``pose_search``: search the skeleton pose that best explains the target before the
-    flow trains (:mod:`ncflow.match.pose_search`; with ``flow.skinning`` only).
+    flow trains (:mod:`ncflow.matcher.pose_search`; with ``flow.skinning`` only).
     ``working_vertices``: train on a decimated copy of a source larger than this (its vertices a
     subset of the source's, :func:`ncflow.geometry.decimate.decimate`); the outputs and the
     correspondence are computed at full resolution with the trained field. ``none``: train on the
@@ -271,7 +271,7 @@ class Config:
     results. ``setup_cache``: keep the placement and the pose search of a pair in the cache folder
     (``setup/``), keyed by the normalised inputs, the settings they depend on and ncflow's code, so
     a run on the same pair with other training settings reads them back
-    (:func:`ncflow.match.place.place_and_pose_cached`); it never changes results.
+    (:func:`ncflow.matcher.place.place_and_pose_cached`); it never changes results.
     """
 
     preset: str = setting("fast")

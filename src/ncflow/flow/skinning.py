@@ -30,7 +30,7 @@ Where the weights are taken (``weight_mode``):
   any point set (the full-resolution source, frames) is moved by the same trained field.
 
 The matcher chooses between them per pair (``flow.skinning_weights = "auto"``, see
-:func:`ncflow.match.prepare.skinning_weight_mode`).
+:func:`ncflow.matcher.prepare.skinning_weight_mode`).
 
 This is not in the paper: there the Flow-Net alone has to produce the articulated motion and the
 bone constraints (MDMM) make it rigid around the bones. With the small network and the few
@@ -119,7 +119,7 @@ class SkinnedField(eqx.Module):
         pose: initial pose (default: the rest pose, so the field starts as the residual alone).
         width: τ of the weights, in the units of the points; held as a 0-d array (not a static
             number) so that one compiled program serves every skeleton, and never trained (the
-            optimiser's ``"frozen"`` group, :func:`ncflow.match.train.parameter_labels`).
+            optimiser's ``"frozen"`` group, :func:`ncflow.matcher.train.parameter_labels`).
         interp: "sclerp" (default) or "slerp", as :func:`ncflow.skeleton.interpolate_world`.
         weight_mode: "current" (default) or "start" — where the bone weights are taken; see the
             module docstring. Only the integrator (:func:`ncflow.flow.integrate`, through

@@ -146,4 +146,4 @@ def as_index(values: Any, n: int, upper: int, what: str) -> np.ndarray:
     return arr.astype(np.int64)
 
 
-# the old private name, still imported by ncflow.match.correspondence: remove once that imports check_finite
+# the old private name, still imported by ncflow.matcher.correspondence: remove once that imports check_finite

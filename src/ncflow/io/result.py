@@ -14,7 +14,7 @@ What :func:`write_result` writes into ``DIR`` (docs/architecture.md, "Outputs an
 ``metrics.json``           the caller's metrics dict, plus ``frame_times``
 =========================  ==================================================================
 
-The maps are computed by :mod:`ncflow.match.correspondence`: ``map_tgt_to_src`` is the foot point
+The maps are computed by :mod:`ncflow.matcher.correspondence`: ``map_tgt_to_src`` is the foot point
 of every target vertex on the flowed source surface as (source face, barycentric coordinates),
 which names the same point of the rest source; the ``p2p`` files are vertex roundings (the corner
 of the foot face with the largest barycentric weight).
@@ -97,7 +97,7 @@ class ResultFolder:
     Attributes:
         deformed_source: (Vs, 3) source vertices flowed to t = 1, user coordinates.
         source_faces: (Fs, 3) source triangles.
-        maps: the correspondence (:func:`~ncflow.match.correspondence.correspondence_maps`): ``map_face``
+        maps: the correspondence (:func:`~ncflow.matcher.correspondence.correspondence_maps`): ``map_face``
             (Vt,), ``map_bary`` (Vt, 3), ``p2p_tgt_to_src`` (Vt,), ``p2p_src_to_tgt`` (Vs,); also
             attributes of their own names.
         frames: (K, Vs, 3) interpolation frames, frame 0 the rest source.

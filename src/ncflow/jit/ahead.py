@@ -5,10 +5,10 @@ Most of a short match is compilation, and neither XLA's compiler nor the pose se
 cores of a small machine busy (each alone about 1.6 of 2; measured in ``benchmarks/RESULTS.md``).
 Everything the compiled programs depend on — the working source, the skeleton, the tissue
 centroids, the shapes of the target measures, the configuration — is known before the target is
-placed (:func:`~ncflow.match.prepare.prepare`'s ``before_search``), so the programs are built then
-(:class:`~ncflow.match.train.TrainingPrograms`, :class:`~ncflow.match.result.OutputPrograms`) and a
+placed (:func:`~ncflow.matcher.prepare.prepare`'s ``before_search``), so the programs are built then
+(:class:`~ncflow.matcher.train.TrainingPrograms`, :class:`~ncflow.matcher.result.OutputPrograms`) and a
 thread lowers and compiles them (``lower(...).compile()``) for stand-ins of the arguments they will
-get (:func:`~ncflow.match.targets.target_stand_ins`). That fills the caches a call fills, so the
+get (:func:`~ncflow.matcher.targets.target_stand_ins`). That fills the caches a call fills, so the
 first real call finds its executable; with the persistent compilation cache on, a warm run's
 thread reads them back from disk instead. Nothing is run: the results are those of a match without
 it, bit for bit. A failure in the thread is recorded (``metrics.json``: ``compile_ahead.errors``;

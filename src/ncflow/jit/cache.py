@@ -2,7 +2,7 @@
 
 Everything ncflow caches lives under one folder: ``$NCFLOW_CACHE_DIR``, default
 ``$XDG_CACHE_HOME/ncflow`` (``~/.cache/ncflow``): the tetrahedralisations (``tissue/``), each
-pair's placement and pose search (``setup/``, :func:`ncflow.match.prepare.place_and_pose_cached`)
+pair's placement and pose search (``setup/``, :func:`ncflow.matcher.prepare.place_and_pose_cached`)
 and JAX's compiled executables (``jax/``). The compilation cache makes a second run of a pair skip most of
 its compilation (the ``jit`` executables of the first run are read back from disk).
 
@@ -16,8 +16,9 @@ where it tunes nothing), so a cluster's nodes or a container image can share one
 
 A cached executable is found by the text of the program it compiles. JAX writes the arrays a
 jitted function closes over (the source, the skeleton, the tissue centroids) into that text by
-default, so every pair had its own programs. :func:`share_executables` makes them arguments of
-the program instead (JAX's ``jax_use_simplified_jaxpr_constants``, with no size limit), and the
+default, so every pair had its own programs. :func:`share_executables` (run by every match) makes
+them arguments of the program instead (JAX's ``jax_use_simplified_jaxpr_constants``, with no size
+limit), and the
 matcher pads the tissue centroids, whose count varies with each tetrahedralisation, to a power of
 two (:func:`bucket`). Pairs whose sources have the same numbers of vertices and edges and whose
 skeletons have the same joint tree (the same character in another pose, two MANO hands) then share
@@ -58,27 +59,24 @@ def compilation_cache_dir(setting: str = "auto") -> Path | None:
     return Path(choice).expanduser()
 
 
-SHARE_SETTINGS = {"JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS": "true", "JAX_EMBEDDED_CONSTANTS_MAX_BYTES": "0"}
-"""JAX's settings (environment variables) that make closed-over arrays arguments of the executable."""
+SHARE_SETTINGS = {"JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS": True, "JAX_EMBEDDED_CONSTANTS_MAX_BYTES": 0}
+"""JAX's settings (their environment variables and values) that make closed-over arrays arguments of the
+executable."""
 
 
 def share_executables() -> bool:
-    """Let one compiled program serve every array value of the same shape (see the module
-    docstring): closed-over arrays become arguments of the executable. JAX reads the setting when
-    it is imported, so ``import ncflow`` calls this first; it sets the environment variables of
-    :data:`SHARE_SETTINGS` that are not set already (a user's own choice wins) and returns whether
-    they apply — False when JAX was imported before ncflow (programs are then compiled per pair,
-    as before; nothing else changes).
+    """Let one compiled program serve every array value of the same shape (see the module docstring):
+    closed-over arrays become arguments of the executable. Sets the JAX options of
+    :data:`SHARE_SETTINGS` whose environment variables the user has not set (a user's own choice wins;
+    JAX read those when it was imported) and returns whether closed-over arrays are now arguments.
+    Called when a match runs, not when ncflow is imported.
     """
-    import sys
+    import jax
 
-    if "jax" in sys.modules:
-        import jax
-
-        return bool(jax.config.values.get("jax_use_simplified_jaxpr_constants", False))
     for name, value in SHARE_SETTINGS.items():
-        os.environ.setdefault(name, value)
-    return os.environ["JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS"].lower() in ("1", "true", "yes", "on")
+        if name not in os.environ:
+            jax.config.update(name.lower(), value)
+    return bool(jax.config.values.get("jax_use_simplified_jaxpr_constants", False))
 
 
 def configure_compilation_cache(setting: str = "auto") -> Path | None:

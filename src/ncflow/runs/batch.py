@@ -48,9 +48,9 @@ from ncflow.errors import InputError
 from ncflow.io.atomic import atomic_write_text
 from ncflow.io.files import read_npz_arrays
 from ncflow.io.meshes import load_mesh
-from ncflow.match.inputs import intake
-from ncflow.match.matcher import Matcher
-from ncflow.match.prepare import source_tissue, uses_tissue, working_source
+from ncflow.matcher.inputs import intake
+from ncflow.matcher.prepare import source_tissue, uses_tissue, working_source
+from ncflow.matcher.steps import Matcher
 from ncflow.runs.cluster import open_client
 from ncflow.runs.engine import RETRIES, Outcome, Task, error_line, run_tasks
 from ncflow.runs.pairs_csv import PairSpec, read_pairs_csv

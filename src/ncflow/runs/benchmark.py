@@ -57,7 +57,7 @@ from ncflow.evaluate.aggregate import run_row
 from ncflow.evaluate.report import write_benchmark_report
 from ncflow.evaluate.score import EVALUATION_FILE, EVALUATION_PLOTS, evaluate_result, write_evaluation
 from ncflow.io.atomic import atomic_write_text
-from ncflow.match.matcher import Matcher
+from ncflow.matcher.steps import Matcher
 from ncflow.runs.batch import MANIFEST_FILE, file_sha256, match_manifest, read_manifest, share_tissues
 from ncflow.runs.cluster import open_client
 from ncflow.runs.engine import Outcome, Task, run_tasks

@@ -10,7 +10,7 @@ import jax
 import jax.flatten_util
 import jax.numpy as jnp
 
-from ncflow.match.prepare import DTYPE
+from ncflow.matcher.prepare import DTYPE
 from ncflow.skeleton import Skeleton, rigid_reference
 from ncflow.skeleton.kinematics import Pose
 

@@ -5,7 +5,7 @@ global-norm clip, with the learning rate injected per step (:func:`optax.inject_
 schedule and the divergence guard's scale are applied to it) and the skeleton pose's learning rate
 scaled by ``flow.pose_lr_scale`` through :func:`optax.multi_transform`. Multipliers follow the
 ramped sign ascent of :func:`ncflow.optim.mdmm.ascend_multipliers`. A
-:class:`~ncflow.match.guard.DivergenceGuard` rolls a stage back to its last healthy snapshot, at
+:class:`~ncflow.matcher.guard.DivergenceGuard` rolls a stage back to its last healthy snapshot, at
 half the learning rate, when the data term or the largest bone violation runs away.
 """
 
@@ -24,11 +24,11 @@ import optax
 from ncflow.errors import NcflowError
 from ncflow.flow import GSONet, SkinnedField, make_flow_field
 from ncflow.jit.cache import jit_run_once
-from ncflow.match.guard import DivergenceGuard
-from ncflow.match.objective import Arrays, Params, Settings, objective
-from ncflow.match.prepare import DTYPE, skinning_width
-from ncflow.match.progress import Progress
-from ncflow.match.stages import Stage, phase_schedule
+from ncflow.matcher.guard import DivergenceGuard
+from ncflow.matcher.objective import Arrays, Params, Settings, objective
+from ncflow.matcher.prepare import DTYPE, skinning_width
+from ncflow.matcher.progress import Progress
+from ncflow.matcher.stages import Stage, phase_schedule
 from ncflow.optim import adabelief_cautious, vectoradam_cautious
 from ncflow.optim.mdmm import ascend_multipliers, multiplier_rate
 from ncflow.skeleton import Skeleton
@@ -97,7 +97,7 @@ def make_step(arrays: Arrays, settings: Settings, optimizer: optax.GradientTrans
     """The jitted training step, one for every stage (the stage's metric is the traced ``which``).
 
     ``step(params, pose, opt_state, lam, targets, which, sigma, sigma_n, yy, cw, lr, progress, key)`` →
-    ``(params, pose, opt_state, lam, aux)``: value and gradient of :func:`~ncflow.match.objective.objective`,
+    ``(params, pose, opt_state, lam, aux)``: value and gradient of :func:`~ncflow.matcher.objective.objective`,
     one optimiser update at learning rate ``lr``, and (MDMM) one multiplier ascent at the rate
     ramped by ``progress`` (step / total steps).
     """
@@ -150,12 +150,52 @@ def training_programs(
     return TrainingPrograms(jit_run_once(initial_params), optimizer, settings, step)
 
 
-def initial_state(programs: TrainingPrograms, skeleton: Skeleton, key, initial_pose: Pose | None):
-    """(params, pose, optimiser state, multipliers) at the start of training."""
-    params = programs.init(key, initial_pose)
-    pose = rest_pose(skeleton, DTYPE) if initial_pose is None else initial_pose
+@dataclasses.dataclass(frozen=True)
+class TrainState:
+    """What the training carries from step to step and hands on: the networks (the field's pose
+    included), the pose of the per-step fit and the multipliers (2, B); a later match may start from it
+    (:func:`train`'s ``start``).
+    """
+
+    params: Params
+    pose: Pose
+    lam: jax.Array
+
+
+@dataclasses.dataclass(frozen=True)
+class Trained:
+    """What :func:`train` returns.
+
+    Attributes:
+        state: the trained :class:`TrainState`.
+        phase_weights: (2,) the last stage's constraint weights (endpoint, trajectory).
+        history: per stage, its phase, metric, σ, steps and final loss parts.
+        steps: the steps run.
+        rollbacks: the divergence guard's events.
+    """
+
+    state: TrainState
+    phase_weights: jax.Array
+    history: tuple[dict, ...]
+    steps: int
+    rollbacks: tuple[dict, ...]
+
+
+def initial_state(
+    programs: TrainingPrograms, skeleton: Skeleton, key, initial_pose: Pose | None, start: TrainState | None = None
+):
+    """(params, pose, optimiser state, multipliers) at the start of training: fresh networks at
+    ``initial_pose`` (default the rest pose), or the state of an earlier training (``start``) with a
+    fresh optimiser state.
+    """
+    if start is not None:
+        params, pose, lam = start.params, start.pose, start.lam
+    else:
+        params = programs.init(key, initial_pose)
+        pose = rest_pose(skeleton, DTYPE) if initial_pose is None else initial_pose
+        lam = jnp.zeros((2, skeleton.n_bones), DTYPE)
     opt_state = programs.optimizer.init(eqx.filter(params, eqx.is_inexact_array))
-    return params, pose, opt_state, jnp.zeros((2, skeleton.n_bones), DTYPE)
+    return params, pose, opt_state, lam
 
 
 def stage_inputs(stage: Stage, metrics: tuple[str, ...], targets: dict, placeholders: dict) -> tuple:
@@ -178,7 +218,7 @@ def stage_placeholders(stages: list[Stage], targets: dict) -> dict:
 
 def compile_step(programs: TrainingPrograms, skeleton: Skeleton, stages: list[Stage], targets: dict, key, pose):
     """Compile the step (and the initialisation) for ``targets`` — real ones or stand-ins of their
-    shapes (:func:`ncflow.match.targets.target_stand_ins`) — without running it: the same
+    shapes (:func:`ncflow.matcher.targets.target_stand_ins`) — without running it: the same
     arguments :func:`train` passes, so its first call finds the executable.
     """
     k_init, k_train = key
@@ -190,32 +230,28 @@ def compile_step(programs: TrainingPrograms, skeleton: Skeleton, stages: list[St
 
 
 def train(
-    arrays: Arrays,
+    programs: TrainingPrograms,
+    skeleton: Skeleton,
     targets: dict,
     stages: list[Stage],
     config,
     key,
     progress: Progress,
-    n_centroids: int,
     initial_pose: Pose | None = None,
-    weight_mode: str = "current",
-    programs: TrainingPrograms | None = None,
-):
-    """Run every stage; returns ``(params, pose, lam, phase_weights, history, steps_done, rollbacks)``.
+    start: TrainState | None = None,
+) -> Trained:
+    """Run every stage of ``stages`` with ``programs`` (:func:`training_programs`, perhaps compiled ahead).
 
-    ``initial_pose`` (from :mod:`ncflow.match.pose_search`) starts the skeleton-driven field and the
-    per-step pose fit; default the rest pose. ``weight_mode`` is the skeleton-driven field's
-    (:class:`~ncflow.flow.SkinnedField`; the matcher's choice, ``Problem.skinning_weights``).
-    ``programs``: the :func:`training_programs` of these arguments, when already built (and
-    perhaps compiled ahead); built here otherwise.
+    ``initial_pose`` (from :mod:`ncflow.matcher.pose_search`) starts the skeleton-driven field and the
+    per-step pose fit; default the rest pose. ``start``: the state of an earlier training to go on
+    from (a warm start; ``initial_pose`` is then not used). ``key``: (initialisation, training) keys.
 
     Raises:
         TrainingError: a non-finite loss or non-finite trained parameters.
     """
     cfg = config
     k_init, k_train = key
-    programs = programs or training_programs(arrays, stages, cfg, n_centroids, weight_mode)
-    params, pose, opt_state, lam = initial_state(programs, arrays.skeleton, k_init, initial_pose)
+    params, pose, opt_state, lam = initial_state(programs, skeleton, k_init, initial_pose, start)
     metrics = programs.settings.metrics
     step = programs.step
     placeholders = stage_placeholders(stages, targets)
@@ -290,4 +326,4 @@ def train(
     leaves = jax.tree_util.tree_leaves(eqx.filter(params, eqx.is_inexact_array))
     if not all(np.all(np.isfinite(np.asarray(leaf))) for leaf in leaves):  # on the host: no program per leaf shape
         raise TrainingError("training produced non-finite parameters")
-    return params, pose, lam, cw, history, done, guard.events
+    return Trained(TrainState(params, pose, lam), cw, tuple(history), done, tuple(guard.events))

@@ -295,7 +295,7 @@ def placement_candidates(
 
     A rigid fit of an articulated pair is pulled by its limbs: a walking figure that stands in place
     is turned by ~30° towards its swung legs. The rigid score alone cannot tell that turn from a real
-    one, so the matcher lets the articulated pose search (:mod:`ncflow.match.pose_search`) choose
+    one, so the matcher lets the articulated pose search (:mod:`ncflow.matcher.pose_search`) choose
     among these candidates. Arguments as :func:`place_target`.
     """
     mats, trans, final = _refined_candidates(

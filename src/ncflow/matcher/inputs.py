@@ -10,7 +10,7 @@ that are each valid on their own.
 Before them, every mesh passes the intake step (:func:`intake`): a triangle soup or a mesh split at its
 seams is welded, zero-area and duplicate faces are dropped, non-manifold edges and vertices split
 (:mod:`ncflow.geometry.repair`), with one warning; the checks and the match take the repaired meshes.
-:func:`check_inputs` runs the checks; :func:`ncflow.match.prepare.prepare` calls both.
+:func:`check_inputs` runs the checks; :func:`ncflow.matcher.prepare.prepare` calls both.
 """
 
 from __future__ import annotations

@@ -15,7 +15,7 @@ constraints (the ARC-Flow baseline) C = w_soft · (c_EP mean(g^EP/ε) + c_TR τ 
 c_EP, c_TR are the phase's constraint weights (c_TR = 0 in phases without the trajectory term).
 
 The skeleton pose of the constraints is eliminated: at every step it is set to the least-squares
-articulated fit of the flowed bone samples (:func:`ncflow.match.pose_fit.fit_pose`, warm-started
+articulated fit of the flowed bone samples (:func:`ncflow.matcher.pose_fit.fit_pose`, warm-started
 Gauss–Newton) weighted by the current multipliers, so it minimises the constraint term over the
 pose and g_k measures only the flow's departure from an articulated rigid motion.
 """
@@ -42,8 +42,8 @@ from ncflow.losses import (
     tissue_distortion,
     tissue_stencil,
 )
-from ncflow.match.pose_fit import constraint_fit_weights, fit_pose
-from ncflow.match.prepare import DTYPE, Problem
+from ncflow.matcher.pose_fit import constraint_fit_weights, fit_pose
+from ncflow.matcher.prepare import DTYPE, Setup
 from ncflow.measures.registry import get_metric
 from ncflow.optim.mdmm import mdmm_term, soft_constraint_term
 from ncflow.skeleton import Skeleton, rigid_reference, sample_bones
@@ -132,8 +132,8 @@ class Arrays:
     radii: np.ndarray
 
     @classmethod
-    def from_problem(cls, problem: Problem, pad: bool = True) -> Arrays:
-        """Training-dtype copies of a :class:`~ncflow.match.prepare.Problem`'s arrays (the working
+    def from_problem(cls, problem: Setup, pad: bool = True) -> Arrays:
+        """Training-dtype copies of a :class:`~ncflow.matcher.prepare.Setup`'s arrays (the working
         source), padded to size buckets unless ``pad`` is False.
         """
         k = problem.centroids.shape[0]

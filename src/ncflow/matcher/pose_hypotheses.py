@@ -1,4 +1,4 @@
-"""The hypotheses of the articulated pose search (:mod:`ncflow.match.pose_search`): the local rotations
+"""The hypotheses of the articulated pose search (:mod:`ncflow.matcher.pose_search`): the local rotations
 each joint tries (bends across its bone, twists about it, and bends chained with the next joint's)
 and the limbs that are tried exchanged (same-shaped subtrees of one joint, each taking the other's
 bone directions). NumPy and SciPy rotations on the host; nothing here is compiled.

@@ -15,23 +15,26 @@ import numpy as np
 
 from ncflow.errors import InputError
 from ncflow.jit.buckets import pad_mesh
-from ncflow.match.prepare import DTYPE, Problem
-from ncflow.match.stages import Stage
+from ncflow.matcher.place import Placed
+from ncflow.matcher.prepare import DTYPE, Setup
+from ncflow.matcher.stages import Stage
 from ncflow.measures.registry import get_metric
 
 TargetKey = tuple[str, float, float]  # (metric, sigma, sigma_normal)
 
 
 def target_measures(
-    problem: Problem, stages: list[Stage], config, message=lambda text: None
+    problem: Setup, placed: Placed, stages: list[Stage], config, message=lambda text: None
 ) -> dict[TargetKey, tuple[Any, float, dict]]:
-    """For every distinct (metric, σ, σ_n) of the stages: (target measure, ⟨Y, Y⟩, compression report).
+    """For every distinct (metric, σ, σ_n) of the stages: (target measure, ⟨Y, Y⟩, compression report),
+    of the target placed as ``placed`` says.
 
     Raises:
         InputError: the target has no measurable surface (a non-finite or zero self-energy).
     """
     targets: dict[TargetKey, tuple[Any, float, dict]] = {}
-    ty, topology = pad_mesh(jnp.asarray(problem.target_vertices, DTYPE), problem.target_topology)
+    placed_vertices = placed.placement.apply(problem.target_vertices)
+    ty, topology = pad_mesh(jnp.asarray(placed_vertices, DTYPE), problem.target_topology)
     full = {}
     for st in stages:
         key = (st.metric, st.sigma, st.phase_config.sigma_normal)
@@ -62,7 +65,7 @@ def compressed(size: int, config) -> bool:
     return bool(config.compress and size > config.compress)
 
 
-def target_stand_ins(problem: Problem, stages: list[Stage], config) -> dict[TargetKey, tuple[Any, float, dict]]:
+def target_stand_ins(problem: Setup, stages: list[Stage], config) -> dict[TargetKey, tuple[Any, float, dict]]:
     """What :func:`target_measures` returns, in shape only: zero measures of the rows the target's
     would have (``compress``, or its size bucket) and ⟨Y, Y⟩ = 1, without placing or compressing
     anything — the target's size does not change when it is placed. For compiling the training
@@ -80,7 +83,7 @@ def target_stand_ins(problem: Problem, stages: list[Stage], config) -> dict[Targ
     return out
 
 
-def _represented(problem: Problem, metric, padded: bool):
+def _represented(problem: Setup, metric, padded: bool):
     """The shapes of the target's measure in ``metric`` (nothing computed), of the mesh padded to its
     size buckets (:func:`ncflow.jit.buckets.pad_mesh`) or as it is.
     """
@@ -94,6 +97,6 @@ def _represented(problem: Problem, metric, padded: bool):
     return jax.eval_shape(measure, jax.ShapeDtypeStruct(problem.target_vertices.shape, DTYPE))
 
 
-def _rows(problem: Problem, metric) -> int:
+def _rows(problem: Setup, metric) -> int:
     """The number of points of the target's measure in ``metric``, padding not counted."""
     return int(_represented(problem, metric, padded=False).centers.shape[0])

@@ -1,0 +1,218 @@
+"""Step 2 of a match: place the target rigidly on the source and search the skeleton pose that explains
+it (:mod:`ncflow.matcher.placement`, :mod:`ncflow.matcher.pose_search`) — the two together, since a rigid fit
+alone is pulled by the limbs of an articulated target — kept in the cache folder per pair.
+
+:func:`place` returns a :class:`Placed`; a match that starts from an earlier result (a sequence's next
+frame) takes that result's placement and pose instead of searching (:meth:`Placed.of_result`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import hashlib
+import json
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ncflow.io.atomic import computed_once
+from ncflow.io.files import read_npz_arrays
+from ncflow.jit.cache import cache_root
+from ncflow.matcher.placement import Placement, place_target, placement_candidates
+from ncflow.matcher.pose_search import PoseSearchResult, search_poses
+from ncflow.matcher.prepare import Setup, skinning_width
+from ncflow.skeleton import Skeleton
+from ncflow.skeleton.kinematics import Pose
+
+
+@dataclasses.dataclass(frozen=True)
+class Placed:
+    """Where the target sits and the pose the skeleton starts from.
+
+    Attributes:
+        placement: the rigid motion that places the target on the source (normalised coordinates).
+        initial_pose: the pose the training starts from (None: the rest pose).
+        pose_search: what the pose search found (None when it did not run).
+        trials: per placement candidate tried, its angle and articulated score.
+        placement_seconds: wall time of the placement (its pose searches excluded).
+        pose_search_seconds: wall time of the pose search(es).
+        setup_cache: whether the placement and the pose search were read back from the cache folder
+            (``hit``) and its entry (``file``, None when not kept; :func:`place_and_pose_cached`).
+    """
+
+    placement: Placement
+    initial_pose: Pose | None = None
+    pose_search: PoseSearchResult | None = None
+    trials: tuple[dict, ...] = ()
+    placement_seconds: float = 0.0
+    pose_search_seconds: float = 0.0
+    setup_cache: dict = dataclasses.field(default_factory=lambda: {"hit": False, "file": None})
+
+    @classmethod
+    def of_result(cls, result) -> Placed:
+        """The placement and the trained pose of an earlier :class:`~ncflow.matcher.result.MatchResult`,
+        searched no further (a warm start).
+        """
+        return cls(result.placement or Placement.identity(), result.state.pose)
+
+
+def searches_pose(config) -> bool:
+    """Whether the matcher searches the skeleton's initial pose (``pose_search`` with ``flow.skinning``)."""
+    return bool(config.pose_search and config.flow.skinning)
+
+
+def place_and_pose(src_v, src_f, tgt_v, tgt_f, skeleton: Skeleton, config, message=lambda text: None):
+    """The target's placement and the source skeleton's initial pose (normalised coordinates).
+
+    With ``placement = "auto"`` and the pose search on (``pose_search`` and ``flow.skinning``), each
+    of :func:`~ncflow.matcher.placement.placement_candidates` (the target as given first) gets its
+    own pose search and the lowest articulated score wins; without the search, the best rigid fit
+    (:func:`~ncflow.matcher.placement.place_target`). Returns (placement, pose search result or None,
+    trials, placement seconds, pose-search seconds).
+    """
+    searching = searches_pose(config)
+    t0 = time.perf_counter()
+    if config.placement != "auto":
+        placements = [Placement.identity()]
+    elif searching:
+        message("placing the target on the source ...")
+        placements = placement_candidates(src_v, src_f, tgt_v, tgt_f, seed=config.seed)
+    else:
+        message("placing the target on the source ...")
+        placements = [place_target(src_v, src_f, tgt_v, tgt_f, seed=config.seed)]
+    t_place = time.perf_counter() - t0
+    if not searching:
+        return placements[0], None, (), t_place, 0.0
+    t0 = time.perf_counter()
+    message("searching the skeleton pose that explains the target ...")
+    results = search_poses(
+        skeleton,
+        src_v,
+        src_f,
+        [pl.apply(tgt_v) for pl in placements],
+        tgt_f,
+        skinning_width=skinning_width(config, skeleton),
+        seed=config.seed,
+    )
+    best = int(np.argmin([r.score for r in results]))
+    trials = tuple(
+        {"angle_degrees": pl.to_dict()["angle_degrees"], "rigid_score": pl.score, "pose_score": r.score}
+        for pl, r in zip(placements, results)
+    )
+    return placements[best], results[best], trials, t_place, time.perf_counter() - t0
+
+
+@functools.cache
+def code_digest() -> str:
+    """SHA-256 of ncflow's own source files and of the JAX and NumPy versions: part of the key of a
+    cached result, so a changed algorithm never reads an entry of another.
+    """
+    root = Path(__file__).resolve().parents[1]
+    h = hashlib.sha256(f"{jax.__version__} {np.__version__}".encode())
+    for path in sorted(root.rglob("*.py")):
+        h.update(str(path.relative_to(root)).encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()
+
+
+def _setup_key(src_v, src_f, tgt_v, tgt_f, skeleton: Skeleton, config) -> str:
+    h = hashlib.sha256()
+    for a in (src_v, tgt_v, skeleton.positions):
+        h.update(np.ascontiguousarray(a, np.float64).tobytes())
+        h.update(repr(np.shape(a)).encode())
+    for a in (src_f, tgt_f, skeleton.parents):
+        h.update(np.ascontiguousarray(a, np.int64).tobytes())
+        h.update(repr(np.shape(a)).encode())
+    settings = (config.placement, searches_pose(config), skinning_width(config, skeleton), config.seed)
+    h.update(repr(settings).encode())
+    h.update(code_digest().encode())
+    return h.hexdigest()[:32]
+
+
+def _write_setup(path, value) -> None:
+    placement, search, trials, t_place, t_search = value
+    arrays = {
+        "rotation": placement.rotation,
+        "translation": placement.translation,
+        "scores": np.array([placement.score, placement.identity_score], np.float64),
+        "moved": np.array(placement.moved),
+        "trials": np.array(json.dumps(list(trials))),
+        "seconds": np.array([t_place, t_search], np.float64),
+    }
+    if search is not None:
+        arrays.update(
+            pose_rotations=np.asarray(search.pose.rotations),
+            pose_translation=np.asarray(search.pose.translation),
+            search_scores=np.array([search.score, search.rest_score], np.float64),
+            hypotheses=np.array(search.hypotheses, np.int64),
+        )
+    np.savez(path, **arrays)
+
+
+def _read_setup(path, n_joints: int):
+    """The entry :func:`_write_setup` wrote; raises (the entry is then computed again) on anything
+    else: missing or misshapen arrays, non-finite numbers.
+    """
+    a = read_npz_arrays(path, ("rotation", "translation", "scores", "moved", "trials", "seconds"))
+    shapes = {"rotation": (3, 3), "translation": (3,), "pose_rotations": (n_joints, 4), "pose_translation": (3,)}
+    for name, shape in shapes.items():
+        if name in a and (np.shape(a[name]) != shape or not np.all(np.isfinite(a[name]))):
+            raise ValueError(f"{path}: {name} is not a finite {shape} array")
+    score, identity_score = (float(x) for x in a["scores"])
+    placement = Placement(
+        np.asarray(a["rotation"], np.float64),
+        np.asarray(a["translation"], np.float64),
+        score,
+        identity_score,
+        bool(a["moved"]),
+    )
+    search = None
+    if "pose_rotations" in a:
+        pose = Pose(jnp.asarray(a["pose_rotations"]), jnp.asarray(a["pose_translation"]))
+        score, rest_score = (float(x) for x in a["search_scores"])
+        search = PoseSearchResult(pose, score, rest_score, int(a["hypotheses"]))
+    trials = tuple(json.loads(str(a["trials"])))
+    return placement, search, trials, *(float(x) for x in a["seconds"])
+
+
+def place_and_pose_cached(src_v, src_f, tgt_v, tgt_f, skeleton: Skeleton, config, message=lambda text: None):
+    """:func:`place_and_pose`, kept in the cache folder (``setup/``) with ``setup_cache`` on: a run on
+    the same pair (the same normalised working source, target and skeleton, placement and pose
+    search settings, seed and ncflow code) with other training settings reads the placement and the
+    pose found back instead of searching again (on the shared MANO pair, about 23 of a warm
+    ``--steps 3`` run's 29 s). The entry holds the values themselves, so the results are those of
+    a run without it, bit for bit. Returns what :func:`place_and_pose` returns (the seconds the
+    search took now, ~0 when read back) and ``{"hit", "file"}``.
+    """
+
+    def compute():
+        return place_and_pose(src_v, src_f, tgt_v, tgt_f, skeleton, config, message)
+
+    if not config.setup_cache or (config.placement != "auto" and not searches_pose(config)):
+        return compute(), {"hit": False, "file": None}
+    t0 = time.perf_counter()
+    path = cache_root() / "setup" / f"{_setup_key(src_v, src_f, tgt_v, tgt_f, skeleton, config)}.npz"
+    value, entry, hit = computed_once(
+        path, compute, functools.partial(_read_setup, n_joints=skeleton.n_joints), _write_setup
+    )
+    if hit:
+        value = (*value[:3], time.perf_counter() - t0, 0.0)
+    return value, {"hit": hit, "file": None if entry is None else str(entry)}
+
+
+def place(setup: Setup, config, message=lambda text: None) -> Placed:
+    """The placement of the target and the skeleton's initial pose (:func:`place_and_pose_cached`)."""
+    (placement, search, trials, t_place, t_search), cache = place_and_pose_cached(
+        setup.working.vertices,
+        setup.working.faces,
+        setup.target_vertices,
+        setup.target_faces,
+        setup.skeleton_normalized,
+        config,
+        message,
+    )
+    return Placed(placement, None if search is None else search.pose, search, trials, t_place, t_search, cache)

@@ -1,0 +1,203 @@
+"""Step 1 of a match: inputs → the normalised problem (DESIGN.md "Pipeline", first steps).
+
+Loads and checks the meshes and the skeleton, repairs the meshes for the match (the intake step,
+:func:`ncflow.matcher.inputs.intake`), fits the one similarity that normalises source, target and
+skeleton (same identity, same scale), makes the working-resolution copy of the source, builds the
+topology tables, draws the soft-tissue centroids (fTetWild once per source, cached:
+:func:`ncflow.tissue.tissue_centroids`) and chooses where the skeleton-driven field takes its bone
+weights. The result, a :class:`Setup`, is everything the compiled programs depend on
+(:mod:`ncflow.matcher.programs`); the target is placed by the next step (:mod:`ncflow.matcher.place`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Float
+
+from ncflow.geometry.decimate import Decimation, decimate
+from ncflow.geometry.mesh import Mesh
+from ncflow.geometry.normalize import Normalization, fit_normalization
+from ncflow.geometry.overlap import self_overlap
+from ncflow.geometry.repair import Repair
+from ncflow.geometry.topology import Topology, mesh_topology
+from ncflow.matcher.inputs import check_inputs, intake, load_inputs
+from ncflow.skeleton import Skeleton
+from ncflow.tissue import centroids_digest, load_tissue_file, tissue_centroids
+
+DTYPE = jnp.float32  # training dtype (DESIGN.md: float32 for training)
+
+
+@dataclasses.dataclass(frozen=True)
+class Setup:
+    """One matching problem in normalised coordinates, before the target is placed.
+
+    Attributes:
+        source, target, skeleton: the inputs as given (user coordinates).
+        normalization: the similarity applied to all three.
+        source_vertices: (V, 3) normalised source vertices (float64), full resolution, every vertex of
+            the source as given (the outputs have a row for each).
+        working: the normalised source the training runs on (:func:`working_source`): the source after
+            the intake step, or a decimated copy made of its vertices when it has more than
+            ``working_vertices`` vertices.
+        target_vertices: (W, 3) normalised vertices of the target after the intake step, as given
+            (not placed): the mesh the data terms see.
+        target_faces: (G, 3) its faces, wound as the source's
+            (:func:`~ncflow.matcher.inputs.target_faces_like_source`).
+        target_points: (Vt, 3) every vertex of the target as given, normalised (not placed): the
+            points the correspondence maps.
+        source_repair, target_repair: the intake step's repairs (:func:`~ncflow.matcher.inputs.intake`),
+            with the maps from the repaired meshes back to the given ones.
+        skeleton_normalized: the skeleton in normalised coordinates.
+        source_topology: edge table of the working source.
+        target_topology: edge table of the target (``target_faces``).
+        bone_radii: (B,) bone-sample radius factor per bone.
+        centroids: (K, 3) soft-tissue tet centroids of the normalised source ((0, 3) when disabled).
+        tissue_info: how the centroids were obtained (cache hit, counts, seconds).
+        tissue_seconds: wall time of obtaining the centroids.
+        warnings: what the intake step and :func:`~ncflow.matcher.inputs.check_inputs` found (polygons
+            split, meshes repaired, a mesh far from the origin, a target of somewhat another size or
+            wound the other way, joints slightly outside the source surface).
+        skinning_weights: the skeleton-driven field's weight mode and why (:func:`skinning_weight_mode`).
+    """
+
+    source: Mesh
+    target: Mesh
+    skeleton: Skeleton
+    normalization: Normalization
+    source_vertices: Float[np.ndarray, "V 3"]
+    working: Decimation
+    target_vertices: Float[np.ndarray, "W 3"]
+    target_faces: np.ndarray
+    target_points: Float[np.ndarray, "Vt 3"]
+    source_repair: Repair
+    target_repair: Repair
+    skeleton_normalized: Skeleton
+    source_topology: Topology
+    target_topology: Topology
+    bone_radii: Float[np.ndarray, " B"]
+    centroids: Float[np.ndarray, "K 3"]
+    tissue_info: dict
+    tissue_seconds: float
+    warnings: tuple[str, ...]
+    skinning_weights: dict
+
+
+def skinning_width(config, skeleton: Skeleton) -> float:
+    """τ of the skeleton-driven field's bone weights: ``flow.skinning_width`` × the median bone length."""
+    return config.flow.skinning_width * float(np.median(skeleton.bone_lengths))
+
+
+def uses_tissue(config) -> bool:
+    """Whether the configuration trains with the soft-tissue term (samples and weight both on)."""
+    return config.sampling.tissue_samples > 0 and config.weights.tissue > 0
+
+
+def working_source(src: Mesh, config, message=lambda text: None) -> tuple[Normalization, Decimation]:
+    """The source's normalisation and the normalised working copy the training runs on
+    (:func:`~ncflow.geometry.decimate.decimate` to ``working_vertices``; the source itself when it is
+    not larger). ``src``: the source after the intake step (:func:`~ncflow.matcher.inputs.intake`).
+    """
+    norm = fit_normalization(src.vertices, src.faces)
+    if config.working_vertices is not None and src.n_vertices > config.working_vertices:
+        message(f"decimating the source to about {config.working_vertices} vertices for training ...")
+    return norm, decimate(norm.apply(src.vertices), src.faces, config.working_vertices or src.n_vertices)
+
+
+def source_tissue(work: Decimation, config, message=lambda text: None) -> tuple[np.ndarray, dict]:
+    """(K, 3) soft-tissue centroids of the working source and how they were obtained: none when the
+    tissue term is off, the exact tissue of ``tissue.file`` when one is given, else
+    :func:`~ncflow.tissue.tissue_centroids` (cached).
+    """
+    if not uses_tissue(config):
+        return np.zeros((0, 3)), {"disabled": True}
+    if config.tissue.file:
+        c = load_tissue_file(config.tissue.file, work.vertices)
+        return c, {"file": config.tissue.file, "n_centroids": int(c.shape[0]), "sha256": centroids_digest(c)}
+    message("tetrahedralising the source for soft-tissue samples ...")
+    return tissue_centroids(work.vertices, work.faces, config.tissue)
+
+
+def prepare(source, target, skeleton, config, message=lambda text: None) -> Setup:
+    """Load, repair, check and normalise the inputs; the working source, its tissue centroids (when the
+    tissue term is on), the edge tables and the bone-weight mode.
+
+    Args:
+        source: the source mesh or its file.
+        target: the target mesh or its file.
+        skeleton: the source's skeleton or its file.
+        config: a validated :class:`ncflow.config.Config`.
+        message: called with one-line progress notes (warnings, tetrahedralisation).
+    """
+    src, tgt, skel = load_inputs(source, target, skeleton)
+    (src_c, src_r, src_note), (tgt_c, tgt_r, tgt_note) = intake(src, "source", config), intake(tgt, "target", config)
+    tgt_f, warnings = check_inputs(src_c, tgt_c, skel)
+    warnings = src_note + tgt_note + warnings
+    for w in warnings:
+        message(f"warning: {w}")
+    norm, work = working_source(src_c, config, message)
+    skel_n = skel.with_positions(norm.apply(skel.positions))
+    t0 = time.perf_counter()
+    centroids, tissue_info = source_tissue(work, config, message)
+    tissue_seconds = time.perf_counter() - t0
+    source_topology = mesh_topology(work.faces, work.vertices.shape[0], name=src.name)
+    target_topology = mesh_topology(tgt_f, tgt_c.n_vertices, name=tgt.name)
+    weights = skinning_weight_mode(config, work.vertices, work.faces, tgt_c.vertices, tgt_f)
+    if weights["mode"] == "start" and config.flow.skinning_weights == "auto":
+        message(
+            f"the target passes through itself ({weights['target_overlap']:.1%} of its area, the source "
+            f"{weights['source_overlap']:.1%}): bone weights taken at each point's start"
+        )
+    return Setup(
+        source=src,
+        target=tgt,
+        skeleton=skel,
+        normalization=norm,
+        source_vertices=norm.apply(src.vertices),
+        working=work,
+        target_vertices=norm.apply(tgt_c.vertices),
+        target_faces=tgt_f,
+        target_points=norm.apply(tgt.vertices),
+        source_repair=src_r,
+        target_repair=tgt_r,
+        skeleton_normalized=skel_n,
+        source_topology=source_topology,
+        target_topology=target_topology,
+        bone_radii=skel_n.bone_radii(config.sampling.bone_radius),
+        centroids=centroids,
+        tissue_info=tissue_info,
+        tissue_seconds=tissue_seconds,
+        warnings=tuple(warnings),
+        skinning_weights=weights,
+    )
+
+
+AUTO_OVERLAP = 0.005
+"""``flow.skinning_weights = "auto"`` takes the weights at the start when the target's self-overlap
+exceeds the source's by more than this share of the area."""
+
+
+def skinning_weight_mode(config, source_vertices, source_faces, target_vertices, target_faces) -> dict:
+    """Where the skeleton-driven field takes its bone weights (:class:`ncflow.flow.SkinnedField`).
+
+    ``flow.skinning_weights`` "current" or "start" is used as it is. With "auto" (the default):
+    "start" when the target passes through itself (:func:`ncflow.geometry.overlap.self_overlap`)
+    over more than :data:`AUTO_OVERLAP` more of its area than the source does — a flow of space
+    cannot make a surface pass through itself, so such a target (the fingertips of a captured or
+    rigged fist sunk into the palm) needs the weights of the start; otherwise "current", the
+    diffeomorphic flow. Returns ``{"setting", "mode", "source_overlap", "target_overlap"}``
+    (overlaps None when not measured: a fixed setting, or no skeleton-driven field).
+    """
+    setting = config.flow.skinning_weights
+    out = {"setting": setting, "mode": "current" if setting == "auto" else setting}
+    out.update(source_overlap=None, target_overlap=None)
+    if setting != "auto" or not config.flow.skinning:
+        return out
+    src, tgt = self_overlap(source_vertices, source_faces), self_overlap(target_vertices, target_faces)
+    out.update(source_overlap=src, target_overlap=tgt)
+    if tgt - src > AUTO_OVERLAP:
+        out["mode"] = "start"
+    return out

@@ -1,0 +1,151 @@
+"""The matcher: correspondence-free matching and interpolation of two poses (paper §4, Eq. 22–27), as
+plain steps a caller can run one by one and re-enter.
+
+1. :func:`~ncflow.matcher.prepare.prepare` — inputs → :class:`~ncflow.matcher.prepare.Setup` (loaded,
+   repaired, checked, normalised; working source, tissue, edge tables);
+2. :func:`~ncflow.matcher.programs.build_programs` — the compiled programs of the setup, compiled ahead in
+   a thread while the next step runs;
+3. :func:`~ncflow.matcher.place.place` — the target placed on the source and the skeleton's pose searched
+   (:class:`~ncflow.matcher.place.Placed`), or taken from an earlier result (:meth:`Placed.of_result`);
+4. :func:`~ncflow.matcher.targets.target_measures` — the target's Varifold / Normal Cycles per length scale,
+   compressed;
+5. :func:`~ncflow.matcher.train.train` — the flow net F_θ (with the ``fast`` preset a skeleton-driven
+   :class:`~ncflow.flow.SkinnedField`), the GSO rotation net and the per-bone multipliers, stage by stage
+   (:class:`~ncflow.matcher.train.Trained`), from scratch or from an earlier result's state;
+6. :func:`~ncflow.matcher.result.build_result` — the full source flowed, frames, skeleton, correspondence
+   and every metric: a :class:`~ncflow.matcher.result.MatchResult` in the user's coordinates.
+
+:func:`match` runs them in order; a sequence of matches hands each result to the next as ``start``.
+"""
+
+from __future__ import annotations
+
+import time
+
+import jax
+
+from ncflow.config import Config, preset, validate_config
+from ncflow.jit.cache import configure_compilation_cache, share_executables
+from ncflow.matcher.place import Placed, place
+from ncflow.matcher.prepare import prepare
+from ncflow.matcher.programs import build_programs
+from ncflow.matcher.progress import Progress
+from ncflow.matcher.result import MatchResult
+from ncflow.matcher.result import build_result as build_result
+from ncflow.matcher.targets import target_measures
+from ncflow.matcher.train import TrainingError, train
+
+__all__ = ["Matcher", "MatchResult", "TrainingError", "match", "run_keys"]
+
+
+def run_keys(seed: int) -> tuple:
+    """The run's three random keys, drawn from ``seed``: initialisation, training, outputs."""
+    return tuple(jax.random.split(jax.random.key(seed), 3))
+
+
+def match(
+    source,
+    target,
+    skeleton,
+    config: Config | None = None,
+    *,
+    quiet: bool = False,
+    stream=None,
+    start: MatchResult | None = None,
+) -> MatchResult:
+    """Match ``source`` to ``target`` with the source's ``skeleton`` (meshes/skeleton or file paths).
+
+    Args:
+        source: the source mesh (or its path).
+        target: the target mesh (or its path), of any triangulation and resolution.
+        skeleton: the source's skeleton (or a path: TGF, JSON, glTF).
+        config: a :class:`~ncflow.config.Config` (default: the ``fast`` preset).
+        quiet: no progress display.
+        stream: where the progress display goes (default stderr).
+        start: an earlier result of the same source and skeleton to go on from (a warm start): its
+            placement and trained pose replace the placement and the pose search, and the training
+            starts from its networks and multipliers.
+
+    Returns:
+        a :class:`~ncflow.matcher.result.MatchResult` (``.save(out_dir)`` writes the output contract).
+    """
+    return Matcher(source, target, skeleton, config, quiet=quiet, stream=stream, start=start).run()
+
+
+def apply_runtime_settings(config: Config) -> None:
+    """What a match sets in JAX for the process: the persistent compilation cache of ``config.jit_cache``
+    and closed-over arrays as arguments of compiled programs (:func:`ncflow.jit.cache.share_executables`).
+    Nothing is set by importing ncflow; the settings apply from the first match on.
+    """
+    share_executables()
+    configure_compilation_cache(config.jit_cache)
+
+
+class Matcher:
+    """The steps of :func:`match` for one (source, target, skeleton): the constructor runs steps 1–4
+    (the problem prepared, its programs compiling, the target placed and measured), :meth:`run` steps 5–6.
+
+    Attributes:
+        config: the validated configuration.
+        setup, programs, placed, targets: what steps 1–4 made.
+        timings: their seconds (``setup``, ``placement``, ``tissue``, ``pose_search``, ``target``).
+    """
+
+    def __init__(
+        self,
+        source,
+        target,
+        skeleton,
+        config: Config | None = None,
+        *,
+        quiet: bool = False,
+        stream=None,
+        start: MatchResult | None = None,
+    ):
+        t0 = time.perf_counter()
+        self.config = validate_config(config or preset("fast"))
+        apply_runtime_settings(self.config)
+        self.progress = Progress(self.config.total_steps, quiet, stream)
+        self.keys = run_keys(self.config.seed)  # initialisation, training, outputs
+        self.start = start
+        self.setup = prepare(source, target, skeleton, self.config, message=self.progress.message)
+        self.programs = build_programs(self.setup, self.config, self.keys)
+        if start is None:
+            self.placed = place(self.setup, self.config, message=self.progress.message)
+        else:
+            self.placed = Placed.of_result(start)
+        self.timings = {
+            "setup": 0.0,
+            "placement": self.placed.placement_seconds,
+            "tissue": self.setup.tissue_seconds,
+            "pose_search": self.placed.pose_search_seconds,
+        }
+        t1 = time.perf_counter()
+        stages = list(self.programs.stages)
+        self.targets = target_measures(self.setup, self.placed, stages, self.config, message=self.progress.message)
+        self.timings["target"] = time.perf_counter() - t1
+        self.timings["setup"] = time.perf_counter() - t0
+
+    def run(self) -> MatchResult:
+        """Train, then build the result (user coordinates)."""
+        cfg, programs = self.config, self.programs
+        t_train = time.perf_counter()
+        waited = programs.wait("training")
+        self.progress.start = t_train
+        k_init, k_train, k_eval = self.keys
+        trained = train(
+            programs.training,
+            programs.arrays.skeleton,
+            self.targets,
+            list(programs.stages),
+            cfg,
+            (k_init, k_train),
+            self.progress,
+            self.placed.initial_pose,
+            start=None if self.start is None else self.start.state,
+        )
+        train_seconds = time.perf_counter() - t_train
+        timings = dict(self.timings, train=train_seconds, per_step=train_seconds / max(trained.steps, 1))
+        if programs.ahead:
+            timings["compile_ahead_wait"] = waited
+        return build_result(self.setup, self.placed, trained, programs, self.targets, cfg, k_eval, timings)
