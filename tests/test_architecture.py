@@ -5,7 +5,7 @@
    imports are resolved, and each import of another ncflow package must respect the layers
 
        geometry (0) <- io (1) <- jit (2) <- {measures, skeleton, flow, tissue, losses, optim, config} (3)
-                    <- {matcher, synthetic} (4) <- evaluate (5) <- {view, transfer, runs} (6) <- cli (7)
+                    <- {matcher, synthetic} (4) <- evaluate (5) <- {view, retarget, runs} (6) <- cli (7)
 
    A package imports only packages of lower layers; packages of one layer do not import each other except
    the few edges of ``SAME_LAYER_ALLOWED`` (each with its reason). ``synthetic`` imports only geometry, io,
@@ -48,7 +48,7 @@ LAYERS = {
     "synthetic": 4,
     "evaluate": 5,
     "view": 6,
-    "transfer": 6,
+    "retarget": 6,
     "runs": 6,
     "cli": 7,
 }

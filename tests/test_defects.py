@@ -7,12 +7,12 @@ import json
 import numpy as np
 import pytest
 
+from mesh_checks import check_repaired
 from ncflow.cli import main
 from ncflow.config import apply_overrides, preset
 from ncflow.geometry.barycentric import surface_points
 from ncflow.geometry.closest import closest_points_on_surface
 from ncflow.geometry.mesh import Mesh
-from ncflow.geometry.repair import check_repaired
 from ncflow.io.meshes import load_mesh, save_mesh
 from ncflow.io.result import read_result
 from ncflow.matcher.prepare import prepare

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ncflow.flow import FlowField, GSONet, flow_points, integrate, rotation_angle, rotation_from_6d
+from ncflow.flow import FlowField, GSONet, flow_points, integrate, rotation_from_6d
 from ncflow.flow.gso import IDENTITY_6D
 from ncflow.geometry.topology import mesh_topology
 from ncflow.losses import (
@@ -34,6 +34,12 @@ call_jit = eqx.filter_jit(lambda net, x, t: net(x, jnp.asarray(t)))
 arap_energy_jit = jax.jit(arap_energy)
 tissue_distortion_jit = jax.jit(tissue_distortion, static_argnums=1)
 codes_jit = eqx.filter_jit(lambda net, x, t: net.codes(x, jnp.asarray(t)))
+
+
+def rotation_angle(r):
+    """Rotation angle in radians of rotation matrices (..., 3, 3): arccos((tr R − 1)/2)."""
+    cos = 0.5 * (jnp.trace(r, axis1=-2, axis2=-1) - 1.0)
+    return jnp.arccos(jnp.clip(cos, -1.0, 1.0))
 
 
 def random_rotation(rng) -> np.ndarray:

@@ -1,48 +1,21 @@
 """The intake step (ncflow.geometry.repair) against brute-force references, and every step after it on
 imperfect meshes: decimation, the self-overlap test, closing holes, edge tables, the readers."""
 
-from collections import defaultdict
-
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from mesh_checks import brute_edge_faces, brute_fans, check_repaired
 from ncflow.errors import InputError
 from ncflow.geometry.decimate import decimate
 from ncflow.geometry.mesh import face_areas, repaired_mesh
 from ncflow.geometry.overlap import self_overlap
-from ncflow.geometry.repair import check_repaired, repair_mesh, weld_groups
+from ncflow.geometry.repair import repair_mesh, weld_groups
 from ncflow.geometry.topology import close_boundary, mesh_topology
 from ncflow.io.meshes import load_mesh
 from ncflow.synthetic.defects import DEFECTS, defective_mesh
 from ncflow.synthetic.shapes import capsule, sphere, tube
-
-
-def brute_edge_faces(faces):
-    """{undirected edge: faces on it}, by a Python loop."""
-    out = defaultdict(list)
-    for i, (a, b, c) in enumerate(np.asarray(faces).tolist()):
-        for p, q in ((a, b), (b, c), (c, a)):
-            out[(min(p, q), max(p, q))].append(i)
-    return out
-
-
-def brute_fans(faces, vertex):
-    """The fans of faces around ``vertex``: groups of its faces joined through edges of exactly two faces."""
-    edges = brute_edge_faces(faces)
-    around = [i for i, f in enumerate(np.asarray(faces).tolist()) if vertex in f]
-    parent = {i: i for i in around}
-
-    def find(i):
-        while parent[i] != i:
-            i = parent[i]
-        return i
-
-    for (p, q), fs in edges.items():
-        if vertex in (p, q) and len(fs) == 2:
-            parent[find(fs[0])] = find(fs[1])
-    return len({find(i) for i in around})
 
 
 def assert_same_surface(rep, vertices, faces):

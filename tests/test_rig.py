@@ -1,4 +1,4 @@
-"""``ncflow rig``: the target of a result as a skinned GLB (transfer/rig.py, io/gltf/rig_writer.py, cli/rig.py).
+"""``ncflow rig``: the target of a result as a skinned GLB (retarget/rig.py, io/gltf/rig_writer.py, cli/rig.py).
 
 The result folder is built without training from a procedural humanoid pair with exact ground truth
 (:func:`ncflow.synthetic.pairs.make_pair`, linear blend skinning, retriangulated target): the frames
@@ -34,11 +34,11 @@ from ncflow.geometry.rigid import linear_blend_skinning, skinning_matrices
 from ncflow.io.gltf.rig_writer import write_rig_glb
 from ncflow.io.gltf.skins import load_gltf_skin, pose_gltf
 from ncflow.io.result import ResultFolder, read_result, write_result
+from ncflow.retarget.rig import joint_motion, rig_result
+from ncflow.retarget.weights import gltf_skin_weights, limit_influences
 from ncflow.skeleton.kinematics import Pose
 from ncflow.synthetic.characters import make_character, pose_character, pose_world_transforms
 from ncflow.synthetic.pairs import make_pair
-from ncflow.transfer.rig import joint_motion, rig_result
-from ncflow.transfer.weights import gltf_skin_weights, limit_influences
 
 K = 6
 

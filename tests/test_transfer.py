@@ -34,12 +34,12 @@ from ncflow.io.obj_uv import read_obj_uv, write_obj_uv
 from ncflow.io.ply_properties import read_ply_vertex_properties
 from ncflow.io.result import ResultFolder, write_result
 from ncflow.io.vertex_arrays import read_vertex_array, write_vertex_array
+from ncflow.retarget.attributes import transfer, transfer_labels, transfer_uv
 from ncflow.synthetic.characters import make_character, pose_character
 from ncflow.synthetic.pairs import make_pair
 from ncflow.synthetic.shapes import sphere, tube
-from ncflow.transfer.attributes import transfer, transfer_labels, transfer_uv
 
-HAS_WEIGHTS = importlib.util.find_spec("ncflow.transfer.weights") is not None
+HAS_WEIGHTS = importlib.util.find_spec("ncflow.retarget.weights") is not None
 
 
 def _rotation(axis, angle: float) -> np.ndarray:
@@ -398,7 +398,7 @@ def test_weights_must_be_a_partition_of_unity(humanoid, tmp_path, capsys):
     assert not (tmp_path / "o.npy").exists()
 
 
-@pytest.mark.skipif(not HAS_WEIGHTS, reason="ncflow.transfer.weights (transfer_skin_weights) is not written yet")
+@pytest.mark.skipif(not HAS_WEIGHTS, reason="ncflow.retarget.weights (transfer_skin_weights) is not written yet")
 def test_weights_call_through_and_are_renormalised(humanoid, tmp_path, capsys):
     w = humanoid.ch.weights
     np.save(tmp_path / "w.npy", w)

@@ -1,4 +1,4 @@
-"""Skin-weight transfer with inpainting (transfer/weights.py) and the cotangent Laplacian (geometry/laplacian.py).
+"""Skin-weight transfer with inpainting (retarget/weights.py) and the cotangent Laplacian (geometry/laplacian.py).
 
 References: potpourri3d's cotangent Laplacian and vertex areas (an independent implementation), a
 dense Laplacian built from angles (arccos) with the inpainting solved as a dense KKT system, and the
@@ -15,7 +15,7 @@ import trimesh
 from ncflow.errors import InputError
 from ncflow.geometry.laplacian import cotangent_laplacian, lumped_mass, mollified_lengths
 from ncflow.geometry.mesh import vertex_normals
-from ncflow.transfer.weights import (
+from ncflow.retarget.weights import (
     inpaint_weights,
     limit_influences,
     skeleton_weights,

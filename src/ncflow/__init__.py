@@ -2,61 +2,67 @@
 
 A small public surface (:data:`__all__`, pinned by ``tests/test_public_api.py``); everything else lives
 in the submodules (``ncflow.measures``, ``ncflow.skeleton``, ``ncflow.flow``, ``ncflow.evaluate``, ...).
-``ncflow.match`` is the matching function; its steps are the modules of the package of the same name
-(``from ncflow.matcher.prepare import prepare``). Importing ncflow sets nothing in JAX: a match applies its
-settings when it runs (:func:`ncflow.matcher.steps.apply_runtime_settings`).
+``ncflow.match`` is the matching function; its steps are the modules of :mod:`ncflow.matcher`
+(``from ncflow.matcher.prepare import prepare``); ``ncflow.transfer`` and the rig are in
+:mod:`ncflow.retarget`.
+
+Importing ncflow imports nothing heavy and sets nothing: each public name is loaded when it is first
+used. Before that first use loads JAX, the JAX options a match wants from the start are put in the
+environment (:func:`ncflow.jit.cache.prepare_jax`, which leaves a user's own settings and an already
+started JAX alone), and a match applies the rest when it runs.
 """
+
+from __future__ import annotations
+
+import importlib
 
 __version__ = "0.3.0"
 
-from ncflow.config import Config, load_config, preset
-from ncflow.errors import InputError, NcflowError
-from ncflow.geometry.mesh import Mesh
-from ncflow.geometry.normalize import fit_normalization
-from ncflow.geometry.topology import mesh_topology
-from ncflow.io.meshes import load_mesh, save_mesh
-from ncflow.io.result import read_result
-from ncflow.matcher import Matcher, MatchResult, TrainingError, match
-from ncflow.measures import (
-    compress_normal_cycle,
-    compress_varifold,
-    normal_cycle,
-    normal_cycle_distance,
-    varifold,
-    varifold_distance,
-)
-from ncflow.skeleton import Skeleton, load_skeleton, save_skeleton
-from ncflow.transfer import rig_result, transfer, transfer_skin_weights
-from ncflow.view import write_view
+_PUBLIC = {
+    "Config": "ncflow.config",
+    "InputError": "ncflow.errors",
+    "MatchResult": "ncflow.matcher",
+    "Matcher": "ncflow.matcher",
+    "Mesh": "ncflow.geometry.mesh",
+    "NcflowError": "ncflow.errors",
+    "Skeleton": "ncflow.skeleton",
+    "TrainingError": "ncflow.matcher",
+    "compress_normal_cycle": "ncflow.measures",
+    "compress_varifold": "ncflow.measures",
+    "fit_normalization": "ncflow.geometry.normalize",
+    "load_config": "ncflow.config",
+    "load_mesh": "ncflow.io.meshes",
+    "load_skeleton": "ncflow.skeleton",
+    "match": "ncflow.matcher",
+    "mesh_topology": "ncflow.geometry.topology",
+    "normal_cycle": "ncflow.measures",
+    "normal_cycle_distance": "ncflow.measures",
+    "preset": "ncflow.config",
+    "read_result": "ncflow.io.result",
+    "rig_result": "ncflow.retarget",
+    "save_mesh": "ncflow.io.meshes",
+    "save_skeleton": "ncflow.skeleton",
+    "transfer": "ncflow.retarget",
+    "transfer_skin_weights": "ncflow.retarget",
+    "varifold": "ncflow.measures",
+    "varifold_distance": "ncflow.measures",
+    "write_view": "ncflow.view",
+}
 
-__all__ = [
-    "Config",
-    "InputError",
-    "Matcher",
-    "MatchResult",
-    "Mesh",
-    "NcflowError",
-    "Skeleton",
-    "TrainingError",
-    "__version__",
-    "compress_normal_cycle",
-    "compress_varifold",
-    "fit_normalization",
-    "load_config",
-    "load_mesh",
-    "load_skeleton",
-    "match",
-    "mesh_topology",
-    "normal_cycle",
-    "normal_cycle_distance",
-    "preset",
-    "read_result",
-    "rig_result",
-    "save_mesh",
-    "save_skeleton",
-    "transfer",
-    "transfer_skin_weights",
-    "varifold",
-    "varifold_distance",
-    "write_view",
-]
+__all__ = ["__version__", *sorted(_PUBLIC)]
+
+
+def __getattr__(name: str):
+    """A public name, loaded at its first use (PEP 562)."""
+    if name not in _PUBLIC:
+        raise AttributeError(f"module 'ncflow' has no attribute {name!r}")
+    from ncflow.jit.cache import prepare_jax
+
+    prepare_jax()
+    value = getattr(importlib.import_module(_PUBLIC[name]), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_PUBLIC))

@@ -63,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
     check_number(args.max_distance, "--max-distance", lo=0.0)
     check_number(args.max_angle, "--max-angle", lo=0.0, hi=180.0)
 
-    from ncflow.transfer.rig import rig_result
+    from ncflow.retarget.rig import rig_result
 
     report = rig_result(
         args.result_dir,

@@ -62,7 +62,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ncflow.cli.options import MiB, check_number, output_file
-    from ncflow.transfer.attributes import summary_line, transfer
+    from ncflow.retarget.attributes import summary_line, transfer
 
     check_number(args.max_distance, "--max-distance", positive=True)
     check_number(args.max_normal_angle, "--max-normal-angle", lo=0.0, hi=180.0)

@@ -6,7 +6,7 @@ local-rotation network (DESIGN.md "Soft tissue") and the skeleton-driven field
 """
 
 from ncflow.flow.fields import DivFreeFlowField, FlowField, divergence, make_flow_field
-from ncflow.flow.gso import GSONet, rotation_angle, rotation_from_6d
+from ncflow.flow.gso import GSONet, rotation_from_6d
 from ncflow.flow.integrate import flow_points, hermite, integrate, time_grid
 from ncflow.flow.skinning import SkinnedField, bone_velocities, skinning_weights
 
@@ -21,7 +21,6 @@ __all__ = [
     "hermite",
     "integrate",
     "make_flow_field",
-    "rotation_angle",
     "rotation_from_6d",
     "skinning_weights",
     "time_grid",

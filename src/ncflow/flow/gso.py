@@ -60,12 +60,6 @@ def rotation_from_6d(code: Float[Array, "*batch 6"]) -> Float[Array, "*batch 3 3
     return jnp.stack([a, b, c], axis=-1)
 
 
-def rotation_angle(r: Float[Array, "*batch 3 3"]) -> Float[Array, "*batch"]:
-    """Rotation angle in radians, arccos((tr R − 1)/2) clipped to [0, π] (diagnostics and tests)."""
-    cos = 0.5 * (jnp.trace(r, axis1=-2, axis2=-1) - 1.0)
-    return jnp.arccos(jnp.clip(cos, -1.0, 1.0))
-
-
 class GSONet(eqx.Module):
     """R_φ(x, t): MLP [x, t] → ō ∈ R⁶ → Gram–Schmidt rotation (see the module docstring).
 

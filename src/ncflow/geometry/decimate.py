@@ -1,4 +1,4 @@
-"""A working-resolution copy of a mesh whose vertices are a subset of the original's (issue 17).
+"""A working-resolution copy of a mesh whose vertices are a subset of the original's.
 
 Quadric-error decimation (fast-simplification, the library pyvista and trimesh use) chooses the
 connectivity; each decimated vertex is then moved to a distinct original vertex near it, so the

@@ -52,10 +52,6 @@ class Mesh:
     def n_faces(self) -> int:
         return int(self.faces.shape[0])
 
-    def with_vertices(self, vertices: Float[np.ndarray, "V 3"]) -> Mesh:
-        """The same connectivity with other vertex positions."""
-        return dataclasses.replace(self, vertices=np.asarray(vertices, dtype=np.float64))
-
 
 # ----------------------------------------------------------------------------------------------
 # Reading and writing

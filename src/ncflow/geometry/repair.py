@@ -448,26 +448,3 @@ def repair_mesh(
         flipped=turn,
         counts=counts,
     )
-
-
-def check_repaired(vertices: Float[np.ndarray, "V 3"], faces: Int[np.ndarray, "F 3"]) -> str | None:
-    """What breaks the guarantees of :func:`repair_mesh` in a mesh (None when nothing): a face out of
-    range or with a repeated corner, an edge in more than two faces, a vertex of several fans, a vertex
-    in no face. The precondition of the steps that take a repaired mesh, checked in the tests.
-    """
-    v = np.asarray(vertices)
-    f = np.asarray(faces, np.int64)
-    nv = v.shape[0]
-    if f.size and (f.min() < 0 or f.max() >= nv):
-        return "face index out of range"
-    if np.any((f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])):
-        return "a face with a repeated corner"
-    _, _, count = _edge_table(f, nv)
-    if count.size and count.max() > 2:
-        return f"an edge in {int(count.max())} faces"
-    _, _, several = _split_fans(f, nv)
-    if several:
-        return f"{several} vertices of several fans"
-    if np.unique(f).size != nv:
-        return f"{nv - np.unique(f).size} vertices in no face"
-    return None

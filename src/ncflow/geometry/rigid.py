@@ -109,20 +109,6 @@ def rotvec_to_quat(rotvec: Float[np.ndarray, "... 3"], *, scalar_first: bool) ->
     return _out_quat(Rotation.from_rotvec(rotvec.reshape(-1, 3)).as_quat(), rotvec.shape[:-1], scalar_first)
 
 
-def quat_to_rotvec(q: Float[np.ndarray, "... 4"], *, scalar_first: bool) -> Float[np.ndarray, "... 3"]:
-    """Rotation vectors (angle in [0, π]) of quaternions (normalised first).
-
-    Args:
-        q: (..., 4) quaternions in the order given by ``scalar_first``.
-        scalar_first: ``(w, x, y, z)`` if True, else ``(x, y, z, w)``.
-
-    Returns:
-        (..., 3) rotation vectors.
-    """
-    q = np.asarray(q, dtype=np.float64)
-    return _as_rotation(q, scalar_first).as_rotvec().reshape(q.shape[:-1] + (3,))
-
-
 def rotvec_to_matrix(rotvec: Float[np.ndarray, "... 3"]) -> Float[np.ndarray, "... 3 3"]:
     """Rotation matrices of rotation vectors (axis × angle in radians): Rodrigues' formula.
 

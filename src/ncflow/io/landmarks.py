@@ -15,7 +15,7 @@ Names are unique; at most :data:`MAX_LANDMARKS` entries; the file is at most
 
 :func:`write_landmarks` writes the carried landmarks as strict JSON (``{"landmarks": [...], ...}``,
 no NaN), atomically; the record's fields are documented where they are made
-(:func:`ncflow.transfer.attributes.carry_landmarks`) and in ``docs/transfer.md``.
+(:func:`ncflow.retarget.attributes.carry_landmarks`) and in ``docs/transfer.md``.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """Compile ahead: the training step and the output programs are compiled in a background thread
-while the target is placed and the skeleton's pose searched (issue 17; beyond the paper).
+while the target is placed and the skeleton's pose searched (beyond the paper).
 
 Most of a short match is compilation, and neither XLA's compiler nor the pose search keeps both
 cores of a small machine busy (each alone about 1.6 of 2; measured in ``benchmarks/RESULTS.md``).

@@ -1,5 +1,5 @@
 """Size buckets: arrays padded to a few sizes so that inputs of similar size share compiled
-programs (issue 17).
+programs.
 
 A compiled program is specific to the shapes of its arrays. The arrays whose size varies from one
 input to the next — the working source's vertices, edges and faces, the tissue centroids, the

@@ -1,4 +1,4 @@
-"""ncflow's cache folder and JAX's persistent compilation cache in it (issue 17).
+"""ncflow's cache folder and JAX's persistent compilation cache in it.
 
 Everything ncflow caches lives under one folder: ``$NCFLOW_CACHE_DIR``, default
 ``$XDG_CACHE_HOME/ncflow`` (``~/.cache/ncflow``): the tetrahedralisations (``tissue/``), each
@@ -16,9 +16,9 @@ where it tunes nothing), so a cluster's nodes or a container image can share one
 
 A cached executable is found by the text of the program it compiles. JAX writes the arrays a
 jitted function closes over (the source, the skeleton, the tissue centroids) into that text by
-default, so every pair had its own programs. :func:`share_executables` (run by every match) makes
-them arguments of the program instead (JAX's ``jax_use_simplified_jaxpr_constants``, with no size
-limit), and the
+default, so every pair had its own programs. :func:`prepare_jax` (before JAX starts) and
+:func:`share_executables` (when a match runs) make them arguments of the program instead (JAX's
+``jax_use_simplified_jaxpr_constants``, with no size limit), and the
 matcher pads the tissue centroids, whose count varies with each tetrahedralisation, to a power of
 two (:func:`bucket`). Pairs whose sources have the same numbers of vertices and edges and whose
 skeletons have the same joint tree (the same character in another pose, two MANO hands) then share
@@ -64,12 +64,29 @@ SHARE_SETTINGS = {"JAX_USE_SIMPLIFIED_JAXPR_CONSTANTS": True, "JAX_EMBEDDED_CONS
 executable."""
 
 
+def prepare_jax() -> bool:
+    """Put the JAX options of :data:`SHARE_SETTINGS` in the environment, before JAX is imported, so that
+    JAX starts with them (it reads them once, when imported: set later, through its configuration, they
+    take effect only in part, and the compiled programs come out otherwise in their last bits). A
+    user's own settings stay; an already imported JAX is left alone (:func:`share_executables` then sets
+    them as far as JAX allows). Called by the ``ncflow`` command before anything else and by the first
+    use of a public name of ``ncflow``, never by ``import ncflow``. Returns whether it set them.
+    """
+    import sys
+
+    if "jax" in sys.modules:
+        return False
+    for name, value in SHARE_SETTINGS.items():
+        os.environ.setdefault(name, str(value).lower())
+    return True
+
+
 def share_executables() -> bool:
     """Let one compiled program serve every array value of the same shape (see the module docstring):
     closed-over arrays become arguments of the executable. Sets the JAX options of
-    :data:`SHARE_SETTINGS` whose environment variables the user has not set (a user's own choice wins;
-    JAX read those when it was imported) and returns whether closed-over arrays are now arguments.
-    Called when a match runs, not when ncflow is imported.
+    :data:`SHARE_SETTINGS` whose environment variables are not set (JAX read those when it was imported:
+    :func:`prepare_jax`) and returns whether closed-over arrays are now arguments. Called when a match
+    runs.
     """
     import jax
 

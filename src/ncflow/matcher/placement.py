@@ -1,4 +1,4 @@
-"""Rigid placement of the target on the source, tolerant of any rotation (issue 16; beyond the paper).
+"""Rigid placement of the target on the source, tolerant of any rotation (beyond the paper).
 
 Scans arrive in any orientation and position; the kernel data terms only pull parts that are
 closer than σ, so a target turned by 90° is never matched. Before anything else the target is
@@ -290,7 +290,7 @@ def placement_candidates(
     then at most ``count − 1`` refined rigid fits, best rigid score first, each at least
     ``distinct_degrees`` from the identity and from each other and scoring at least
     ``min_relative_score`` × the best rigid score: on 30 benchmark pairs (hard set and 17-pair
-    benchmark, session 8) every refined fit the pose search chose scored ≥ 0.995 × the best, and
+    benchmark; docs/tuning.md) every refined fit the pose search chose scored ≥ 0.995 × the best, and
     those below 0.8 (mostly a hand turned front to back, 0.36–0.77) only cost a pose search each.
 
     A rigid fit of an articulated pair is pulled by its limbs: a walking figure that stands in place

@@ -16,7 +16,7 @@ from ncflow.optim.optimizers import (
     scale_by_vector_adam,
     vectoradam_cautious,
 )
-from ncflow.optim.schedules import piecewise_phases, warmup_constant, warmup_cosine
+from ncflow.optim.schedules import warmup_constant, warmup_cosine
 
 __all__ = [
     "adabelief_cautious",
@@ -25,7 +25,6 @@ __all__ = [
     "cautious",
     "is_vector_array",
     "mdmm_term",
-    "piecewise_phases",
     "scale_by_vector_adam",
     "soft_constraint_term",
     "vectoradam_cautious",

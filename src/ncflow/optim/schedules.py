@@ -1,14 +1,12 @@
 """Learning-rate schedules of the step count (DESIGN.md "Optimiser"; reference-notes §10.2).
 
 A schedule maps a step count s (int, or an int array inside jit; optax counts from 0) to a
-learning rate. Each training phase has its own warm-up, and :func:`piecewise_phases` restarts every
-phase's schedule at its own step 0, so the first step of each phase has η = 0 when it warms up.
+learning rate. Each training phase has its own warm-up: the training loop calls a phase's schedule
+with the phase's own step count (:func:`ncflow.matcher.stages.phase_schedule`), so the first step of
+each phase has η = 0 when it warms up.
 """
 
 from __future__ import annotations
-
-import itertools
-from collections.abc import Sequence
 
 import jax.numpy as jnp
 import optax
@@ -48,14 +46,3 @@ def warmup_constant(peak: float, warmup_steps: int) -> optax.Schedule:
         return _warmup(peak, warmup_steps, jnp.asarray(step, dtype=float))
 
     return schedule
-
-
-def piecewise_phases(phases: Sequence[tuple[int, optax.Schedule]]) -> optax.Schedule:
-    """Concatenate phases [(n_steps, schedule), ...]: during phase i (global steps
-    [S_i, S_i + n_i), S_i = n_0 + … + n_{i−1}) the rate is schedule_i(s − S_i). After the last phase
-    its schedule continues with its own count.
-    """
-    if not phases:
-        raise ValueError("piecewise_phases needs at least one phase")
-    boundaries = list(itertools.accumulate(int(n) for n, _ in phases))[:-1]
-    return optax.join_schedules([sched for _, sched in phases], boundaries)

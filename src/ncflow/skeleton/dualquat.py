@@ -273,11 +273,6 @@ def dq_translation(q: Float[ArrayLike, "... 8"]) -> Float[Array, "... 3"]:
     return 2.0 * quat_mul(q[..., 4:], quat_conj(q[..., :4]))[..., 1:]
 
 
-def dq_to_rt(q: Float[ArrayLike, "... 8"]) -> tuple[Float[Array, "... 4"], Float[Array, "... 3"]]:
-    """(rotation quaternion, translation) of a unit DQ."""
-    return dq_rotation(q), dq_translation(q)
-
-
 def dq_from_matrix(m: Float[ArrayLike, "... 4 4"]) -> Float[Array, "... 8"]:
     """Unit DQ of a 4×4 rigid matrix [[R, t], [0, 1]] (real part with w ≥ 0)."""
     m = _float(m)

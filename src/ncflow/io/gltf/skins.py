@@ -36,8 +36,8 @@ Conventions:
   taken at the same first occurrences (``file_index``), so every pose has the same vertex order.
   Faces that become degenerate (a repeated vertex) are dropped.
 
-Over 500 lines: one reader of skinned characters (skin, geometry, skeleton, posing), read end to
-end.
+Posing is :mod:`ncflow.io.gltf.posing`, the decoding of the mesh's primitives
+:mod:`ncflow.io.gltf.primitives`.
 """
 
 from __future__ import annotations
@@ -50,11 +50,9 @@ import numpy as np
 from jaxtyping import Float, Int
 
 from ncflow.errors import InputError
-from ncflow.geometry.mesh import Mesh, weld_vertices
-from ncflow.geometry.rigid import forward_kinematics, sparse_linear_blend_skinning, trs_matrix
 from ncflow.geometry.skeleton import MAX_JOINTS, Skeleton, _default_labels, merge_zero_length_bones
 from ncflow.io.files import short_repr
-from ncflow.io.gltf.animation import AnimationInfo, Channel, check_time, interpolate_keyframes, read_animations
+from ncflow.io.gltf.animation import AnimationInfo, Channel, read_animations
 from ncflow.io.gltf.document import (
     DocumentReader,
     get_field,
@@ -64,36 +62,8 @@ from ncflow.io.gltf.document import (
     node_rest,
     unique_names,
 )
-
-
-@dataclasses.dataclass(frozen=True)
-class PosedMesh:
-    """A posed skinned mesh and its skeleton.
-
-    Attributes:
-        vertices: (V, 3) posed positions (world coordinates), welded unless asked otherwise.
-        faces: (F, 3) triangles, 0-based.
-        joint_positions: (J, 3) world positions of the skin's joints in the same pose.
-        parents: (J,) parent joint index, -1 for the root.
-        names: J joint names.
-        file_index: (V,) index of each vertex in the file's vertex list (all primitives of the
-            skinned mesh concatenated in order); identity when not welded.
-        time: the animation time used (after clamping), None for the bind / rest pose.
-        animation: the clip's name used (None when no animation was sampled).
-    """
-
-    vertices: Float[np.ndarray, "V 3"]
-    faces: Int[np.ndarray, "F 3"]
-    joint_positions: Float[np.ndarray, "J 3"]
-    parents: Int[np.ndarray, " J"]
-    names: list[str]
-    file_index: Int[np.ndarray, " V"]
-    time: float | None = None
-    animation: str | None = None
-
-    def to_mesh(self, name: str | None = None):
-        """The surface as an :class:`ncflow.geometry.mesh.Mesh`."""
-        return Mesh(vertices=self.vertices, faces=self.faces, name=name, file_index=self.file_index)
+from ncflow.io.gltf.posing import PosedMesh, joint_world, local_transforms, pose_skin, world_transforms
+from ncflow.io.gltf.primitives import read_skinned_primitives
 
 
 @dataclasses.dataclass(frozen=True)
@@ -179,101 +149,25 @@ class GltfSkin:
         shown = [f"{a.index}:{short_repr(a.name, 24) if a.name else '(unnamed)'}" for a in self.animations[:most]]
         return ", ".join(shown) + (f", ... ({len(self.animations)} clips)" if len(self.animations) > most else "")
 
-    # -- posing ------------------------------------------------------------------------------
+    # -- posing (ncflow.io.gltf.posing) --------------------------------------------------------
 
-    def local_transforms(
-        self,
-        time: float | None = None,
-        animation: str | int | None = None,
-        joint_rotations: Float[np.ndarray, "J 4"] | None = None,
-    ) -> Float[np.ndarray, "N 4 4"]:
-        """Local transform of every node at an animation time and/or with replaced joint rotations."""
-        t_, r_, s_ = self.rest_translations.copy(), self.rest_rotations.copy(), self.rest_scales.copy()
-        changed = np.zeros(self.node_parents.shape[0], dtype=bool)
-        if time is not None:
-            time = check_time(time, self.path)
-            info = self.find_animation(animation)
-            t = min(max(time, info.start), info.end)
-            target = {"translation": t_, "rotation": r_, "scale": s_}
-            for ch in self.channels[info.index]:
-                target[ch.path][ch.node] = interpolate_keyframes(
-                    ch.times, ch.values, t, ch.interpolation, rotation=ch.path == "rotation"
-                )
-                changed[ch.node] = True
-        if joint_rotations is not None:
-            q = np.asarray(joint_rotations, dtype=np.float64)
-            if q.shape != (self.n_joints, 4):
-                raise InputError(f"joint rotations must have shape ({self.n_joints}, 4), got {q.shape}")
-            norm = np.linalg.norm(q, axis=1)
-            if not np.all(np.isfinite(q)) or np.any(norm < 1e-12):
-                raise InputError("joint rotations must be finite non-zero quaternions (x, y, z, w)")
-            r_[self.joint_nodes] = q / norm[:, None]
-            changed[self.joint_nodes] = True
-        local = self.rest_local.copy()
-        local[changed] = trs_matrix(t_[changed], r_[changed], s_[changed], scalar_first=False)
-        return local
+    def local_transforms(self, time=None, animation=None, joint_rotations=None) -> Float[np.ndarray, "N 4 4"]:
+        """:func:`~ncflow.io.gltf.posing.local_transforms` of this skin."""
+        return local_transforms(self, time, animation, joint_rotations)
 
     def world_transforms(self, local: Float[np.ndarray, "N 4 4"]) -> Float[np.ndarray, "N 4 4"]:
-        """World transform of every node from the local ones (:func:`ncflow.geometry.rigid.forward_kinematics`
-        over the node hierarchy, parents first).
-        """
-        return forward_kinematics(local, self.node_parents, order=self.node_order)
+        """:func:`~ncflow.io.gltf.posing.world_transforms` of this skin."""
+        return world_transforms(self, local)
 
-    def joint_world(
-        self,
-        time: float | None = None,
-        animation: str | int | None = None,
-        joint_rotations: Float[np.ndarray, "J 4"] | None = None,
-    ) -> Float[np.ndarray, "J 4 4"]:
-        """World transforms of the joints: the bind pose (inverse of the inverse bind matrices)
-        when neither a time nor rotations are given, else the animated / rotated node hierarchy.
-        """
-        if time is None and joint_rotations is None:
-            if animation is not None:
-                self.find_animation(animation)  # validate even though the bind pose ignores it
-            return np.linalg.inv(self.inverse_bind)
-        world = self.world_transforms(self.local_transforms(time, animation, joint_rotations))
-        return world[self.joint_nodes]
+    def joint_world(self, time=None, animation=None, joint_rotations=None) -> Float[np.ndarray, "J 4 4"]:
+        """:func:`~ncflow.io.gltf.posing.joint_world` of this skin."""
+        return joint_world(self, time, animation, joint_rotations)
 
-    def pose(
-        self,
-        time: float | None = None,
-        animation: str | int | None = None,
-        joint_rotations: Float[np.ndarray, "J 4"] | None = None,
-        weld: bool = True,
-    ) -> PosedMesh:
-        """The skinned mesh posed by linear blend skinning; see :func:`pose_gltf`."""
-        if self.positions is None:
-            raise InputError("no skinned mesh was read for this skin", self.path)
-        joint_world = self.joint_world(time, animation, joint_rotations)
-        if time is None and joint_rotations is None:
-            posed = self.positions.copy()  # every skin matrix is the identity
-        else:
-            skin_matrices = joint_world @ self.inverse_bind
-            posed = sparse_linear_blend_skinning(self.positions, self.joints, self.weights, skin_matrices)
-        faces = self.faces
-        file_index = np.arange(self.positions.shape[0])
-        if weld:
-            _, faces, file_index = weld_vertices(self.positions, self.faces)
-            posed = posed[file_index]
-            keep = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 2] != faces[:, 0])
-            faces = faces[keep]
-        clip = None
-        used_time = None
-        if time is not None:
-            info = self.find_animation(animation)
-            clip = info.name
-            used_time = min(max(float(time), info.start), info.end)
-        return PosedMesh(
-            vertices=posed,
-            faces=np.asarray(faces, dtype=np.int64),
-            joint_positions=joint_world[:, :3, 3].copy(),
-            parents=self.parents.copy(),
-            names=list(self.names),
-            file_index=np.asarray(file_index, dtype=np.int64),
-            time=used_time,
-            animation=clip,
-        )
+    def pose(self, time=None, animation=None, joint_rotations=None, weld: bool = True) -> PosedMesh:
+        """The skinned mesh posed by linear blend skinning (:func:`~ncflow.io.gltf.posing.pose_skin`; see
+        :func:`pose_gltf`).
+        """
+        return pose_skin(self, time, animation, joint_rotations, weld)
 
 
 def _check_invertible(inverse_bind: np.ndarray, what: str, reader: DocumentReader) -> None:
@@ -311,108 +205,6 @@ def _skeleton_parents(
         root = int(roots[np.lexsort((roots, node_depth[joint_nodes[roots]]))[0]])
         parents[roots[roots != root]] = root
     return parents
-
-
-_MODES = {4: "triangles", 5: "strip", 6: "fan"}
-
-
-def _triangles(indices: np.ndarray, mode: int) -> np.ndarray:
-    """(F, 3) triangles from a triangle list, strip or fan index sequence."""
-    if mode == 4:
-        return indices[: indices.size // 3 * 3].reshape(-1, 3)
-    n = indices.size - 2
-    if n <= 0:
-        return np.zeros((0, 3), dtype=np.int64)
-    k = np.arange(n)
-    if mode == 5:  # strips alternate winding
-        even = k % 2 == 0
-        a = indices[k]
-        b = np.where(even, indices[k + 1], indices[k + 2])
-        c = np.where(even, indices[k + 2], indices[k + 1])
-        return np.stack([a, b, c], 1)
-    return np.stack([np.full(n, indices[0]), indices[k + 1], indices[k + 2]], 1)
-
-
-def _read_geometry(doc, reader: DocumentReader, mesh_index: int, n_joints: int):
-    """(positions (V,3), faces (F,3), joints (V,K), weights (V,K)) of all primitives of a mesh."""
-    meshes = doc.meshes or []
-    if not 0 <= mesh_index < len(meshes):
-        reader.fail(f"mesh {mesh_index} does not exist")
-    prims = get_field(meshes[mesh_index], "primitives") or []
-    pos_all, face_all, jnt_all, wgt_all = [], [], [], []
-    offset = 0
-    n_sets = None
-    for p, prim in enumerate(prims):
-        what = f"mesh {mesh_index} primitive {p}"
-        mode = get_field(prim, "mode")
-        mode = 4 if mode is None else int(mode)
-        if mode not in _MODES:
-            reader.fail(f"{what} is not made of triangles (mode {mode})")
-        attrs = get_field(prim, "attributes")
-        pos = reader.accessor(get_field(attrs, "POSITION"), what + " POSITION").astype(np.float64)
-        if pos.ndim != 2 or pos.shape[1] != 3:
-            reader.fail(f"{what}: POSITION must be VEC3")
-        sets = []
-        k = 0
-        while get_field(attrs, f"JOINTS_{k}") is not None and get_field(attrs, f"WEIGHTS_{k}") is not None:
-            j = reader.accessor(get_field(attrs, f"JOINTS_{k}"), f"{what} JOINTS_{k}")
-            w = reader.accessor(get_field(attrs, f"WEIGHTS_{k}"), f"{what} WEIGHTS_{k}").astype(np.float64)
-            if j.shape != (pos.shape[0], 4) or w.shape != (pos.shape[0], 4):
-                reader.fail(f"{what}: JOINTS_{k} / WEIGHTS_{k} must be VEC4 with one entry per vertex")
-            if j.dtype.kind == "f":
-                reader.fail(f"{what}: JOINTS_{k} must be unsigned integers")
-            sets.append((j, w))
-            k += 1
-        if not sets:
-            reader.fail(f"{what} has no JOINTS_0 / WEIGHTS_0 (not skinned)")
-        if n_sets is None:
-            n_sets = len(sets)
-        # primitives with fewer influence sets are padded with zero weights
-        while len(sets) < n_sets:
-            sets.append((np.zeros((pos.shape[0], 4), np.int64), np.zeros((pos.shape[0], 4))))
-        if len(sets) > n_sets:
-            pad = len(sets) - n_sets
-            for q in range(len(jnt_all)):
-                jnt_all[q] = np.concatenate([jnt_all[q], np.zeros((jnt_all[q].shape[0], 4 * pad), np.int64)], 1)
-                wgt_all[q] = np.concatenate([wgt_all[q], np.zeros((wgt_all[q].shape[0], 4 * pad))], 1)
-            n_sets = len(sets)
-        joints = np.concatenate([s[0] for s in sets], 1).astype(np.int64)
-        weights = np.concatenate([s[1] for s in sets], 1)
-        if get_field(prim, "indices") is not None:
-            idx = reader.accessor(get_field(prim, "indices"), what + " indices").reshape(-1)
-            if idx.dtype.kind == "f":
-                reader.fail(f"{what}: indices must be integers")
-        else:
-            idx = np.arange(pos.shape[0], dtype=np.int64)
-        if idx.size and (idx.min() < 0 or idx.max() >= pos.shape[0]):
-            reader.fail(f"{what}: vertex index out of range ({int(idx.max())} >= {pos.shape[0]} vertices)")
-        faces = _triangles(idx.astype(np.int64), mode)
-        pos_all.append(pos)
-        face_all.append(faces + offset)
-        jnt_all.append(joints)
-        wgt_all.append(weights)
-        offset += pos.shape[0]
-    if not pos_all or offset == 0:
-        reader.fail(f"mesh {mesh_index} has no vertices")
-    positions = np.concatenate(pos_all)
-    faces = np.concatenate(face_all)
-    joints = np.concatenate(jnt_all)
-    weights = np.concatenate(wgt_all)
-    if faces.shape[0] == 0:
-        reader.fail(f"mesh {mesh_index} has no triangles")
-    if not np.all(np.isfinite(positions)):
-        reader.fail(f"mesh {mesh_index}: non-finite vertex positions")
-    if not np.all(np.isfinite(weights)) or np.any(weights < 0):
-        reader.fail(f"mesh {mesh_index}: skin weights must be finite and non-negative")
-    used = weights > 0
-    if np.any(used & ((joints < 0) | (joints >= n_joints))):
-        reader.fail(f"mesh {mesh_index}: a skin joint index is out of range (the skin has {n_joints} joints)")
-    joints = np.where(used, joints, 0)
-    total = weights.sum(1)
-    if np.any(total <= 0):
-        bad = np.flatnonzero(total <= 0)
-        reader.fail(f"mesh {mesh_index}: {bad.size} vertices have no skin weight (first: vertex {int(bad[0])})")
-    return positions, faces, joints, weights / total[:, None]
 
 
 def load_gltf_skin(path: str | os.PathLike, skin: int | None = None, *, geometry: bool = True) -> GltfSkin:
@@ -484,7 +276,7 @@ def _load_gltf_skin(path: Path, skin: int | None, geometry: bool) -> GltfSkin:
                 break
         if mesh_node is None:
             reader.fail(f"no node uses skin {skin_index} with a mesh (nothing to pose)")
-        positions, faces, joints, weights = _read_geometry(
+        positions, faces, joints, weights = read_skinned_primitives(
             doc, reader, int(get_field(nodes[mesh_node], "mesh")), n_joints
         )
     return GltfSkin(

@@ -10,8 +10,8 @@ Every target vertex j corresponds to the point of the rest source surface given 
   face's three corner labels (``"majority"``), else the corner of largest weight (``"nearest"``);
 * colours (PLY ``red green blue [alpha]``): barycentric, clipped to the range, written as bytes;
 * texture coordinates (OBJ with ``vt``, face-varying, with seams):
-  :func:`ncflow.transfer.uv.transfer_uv`, one chart per target point and no target triangle across a seam;
-* skin weights: :func:`ncflow.transfer.weights.transfer_skin_weights` (barycentric carry, clamped,
+  :func:`ncflow.retarget.uv.transfer_uv`, one chart per target point and no target triangle across a seam;
+* skin weights: :func:`ncflow.retarget.weights.transfer_skin_weights` (barycentric carry, clamped,
   renormalised, unreliable vertices inpainted);
 * landmarks (JSON: vertex ids or points): :func:`carry_landmarks`, moved with the flowed source
   and projected onto the target surface.
@@ -39,8 +39,8 @@ from ncflow.io.obj_uv import read_obj_uv, write_obj_uv
 from ncflow.io.ply_properties import PLY_TYPES, PlyVertexProperties, read_ply_vertex_properties, write_ply_properties
 from ncflow.io.result import CONTRACT_FILES, read_result, result_target
 from ncflow.io.vertex_arrays import read_vertex_array, write_vertex_array
-from ncflow.transfer.uv import UVTransfer, transfer_uv
-from ncflow.transfer.weights import transfer_skin_weights
+from ncflow.retarget.uv import UVTransfer, transfer_uv
+from ncflow.retarget.weights import transfer_skin_weights
 
 __all__ = [
     "KINDS",

@@ -10,7 +10,7 @@
 * **Mesh**: the target (``target.ply``, or the mesh given with ``target=`` / ``--target``).
 * **Weights**: per-joint skin weights on the source, carried to the target through
   ``map_tgt_to_src`` and inpainted where the map is unreliable
-  (:func:`ncflow.transfer.weights.transfer_skin_weights`), then cut to the 4 largest per vertex and
+  (:func:`ncflow.retarget.weights.transfer_skin_weights`), then cut to the 4 largest per vertex and
   renormalised. The source's weights come from its glTF skin when one is given
   (:func:`gltf_skin_weights`: its joints matched to the skeleton's by name), otherwise from the
   skeleton (:func:`skeleton_weights`: the skeleton-driven flow field's bone weights on the rest
@@ -54,7 +54,7 @@ from ncflow.io.gltf.document import unique_names
 from ncflow.io.gltf.rig_writer import write_rig_glb
 from ncflow.io.gltf.skins import load_gltf_skin
 from ncflow.io.result import read_result, result_target
-from ncflow.transfer.weights import (
+from ncflow.retarget.weights import (
     DEFAULT_MAX_DISTANCE,
     DEFAULT_SKINNING_WIDTH,
     gltf_skin_weights,

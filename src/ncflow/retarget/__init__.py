@@ -3,8 +3,8 @@
 skinned glTF character (:func:`rig_result`).
 """
 
-from ncflow.transfer.attributes import transfer
-from ncflow.transfer.rig import rig_result
-from ncflow.transfer.weights import transfer_skin_weights
+from ncflow.retarget.attributes import transfer
+from ncflow.retarget.rig import rig_result
+from ncflow.retarget.weights import transfer_skin_weights
 
 __all__ = ["rig_result", "transfer", "transfer_skin_weights"]
