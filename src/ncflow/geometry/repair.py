@@ -350,6 +350,69 @@ def _face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
 
 
+COUNTS = (
+    "welded",
+    "degenerate",
+    "duplicate",
+    "small_components",
+    "small_component_faces",
+    "reoriented",
+    "nonmanifold_edges",
+    "nonmanifold_vertices",
+    "split_vertices",
+    "detached_faces",
+    "unreferenced",
+)
+"""What :attr:`Repair.counts` counts, in the order :meth:`Repair.summary` says it."""
+
+
+def _kept_faces(v, wf, areas, diag: float, min_component: float, counts: dict) -> np.ndarray:
+    """The faces that stay (steps 2–4): neither degenerate nor a duplicate of an earlier one, nor in a
+    component under ``min_component`` of the area.
+    """
+    nv = v.shape[0]
+    repeated = (wf[:, 0] == wf[:, 1]) | (wf[:, 1] == wf[:, 2]) | (wf[:, 0] == wf[:, 2])
+    keep = ~(repeated | (areas <= AREA_TOL * diag**2))
+    counts["degenerate"] = int(np.count_nonzero(~keep))
+    kept = np.flatnonzero(keep)
+    _, first = np.unique(_face_keys(wf[kept], nv), axis=0, return_index=True)
+    counts["duplicate"] = int(kept.size - first.size)
+    kept = kept[np.sort(first)]
+    if min_component > 0 and kept.size:
+        comp = _component_labels(wf[kept], nv)
+        share = np.bincount(comp, weights=areas[kept]) / areas[kept].sum()
+        small = share[comp] < min_component
+        counts["small_components"] = int(np.count_nonzero(share < min_component))
+        counts["small_component_faces"] = int(np.count_nonzero(small))
+        kept = kept[~small]  # the largest component always stays (its share is at least its part)
+    return kept
+
+
+def _wound_and_split(v, work, areas, counts: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Steps 5–6 on the kept faces: (faces wound one way per component and split where non-manifold,
+    for each vertex its input vertex, which faces were turned).
+    """
+    nv = v.shape[0]
+    edge, forward, edge_count = _edge_table(work, nv)
+    pairs = _manifold_pairs(edge, edge_count)
+    turn = _orient_components(work, areas, pairs, forward)
+    counts["reoriented"] = int(np.count_nonzero(turn))
+    work, pairs = _turn(work, turn, pairs)
+    counts["nonmanifold_edges"] = int(np.count_nonzero(edge_count > 2))
+    if counts["nonmanifold_edges"]:
+        more = _nonmanifold_pairs(v, work)
+        pairs = (np.concatenate([pairs[0], more[0]]), np.concatenate([pairs[1], more[1]]))
+    work, origin, counts["nonmanifold_vertices"] = _split_fans(work, nv, pairs)
+    if counts["nonmanifold_edges"]:  # splitting may leave an edge of more than two faces in a tangle
+        work, origin2, counts["detached_faces"] = _detach_crowded(work, origin.size)
+        origin = origin[origin2]
+        if counts["detached_faces"]:
+            work, origin3, _ = _split_fans(work, origin.size)
+            origin = origin[origin3]
+    counts["split_vertices"] = int(origin.size - nv)
+    return work, origin, turn
+
+
 def repair_mesh(
     vertices: Float[np.ndarray, "V 3"],
     faces: Int[np.ndarray, "F 3"],
@@ -379,65 +442,20 @@ def repair_mesh(
     if not 0.0 <= min_component < 1.0:
         raise InputError(f"the smallest component share must be in [0, 1) (got {min_component:g})", name)
     diag = _bbox_diagonal(v)
-    counts = dict.fromkeys(
-        (
-            "welded",
-            "degenerate",
-            "duplicate",
-            "small_components",
-            "small_component_faces",
-            "reoriented",
-            "nonmanifold_edges",
-            "nonmanifold_vertices",
-            "split_vertices",
-            "detached_faces",
-            "unreferenced",
-        ),
-        0,
-    )
+    counts = dict.fromkeys(COUNTS, 0)
     group = weld_groups(v, weld_tolerance * diag)
     referenced = np.zeros(nv, bool)
     referenced[f.reshape(-1)] = True
     counts["welded"] = int(np.count_nonzero(referenced & (group != np.arange(nv))))
+    counts["unreferenced"] = int(np.count_nonzero(~referenced))
     wf = group[f]
     areas = _face_areas(v, wf)
-    repeated = (wf[:, 0] == wf[:, 1]) | (wf[:, 1] == wf[:, 2]) | (wf[:, 0] == wf[:, 2])
-    keep = ~(repeated | (areas <= AREA_TOL * diag**2))
-    counts["degenerate"] = int(np.count_nonzero(~keep))
-    kept = np.flatnonzero(keep)
-    _, first = np.unique(_face_keys(wf[kept], nv), axis=0, return_index=True)
-    counts["duplicate"] = int(kept.size - first.size)
-    kept = kept[np.sort(first)]
+    kept = _kept_faces(v, wf, areas, diag, min_component, counts)
     if kept.size == 0:
         raise InputError(f"none of its {f.shape[0]} faces has an area (every face is degenerate)", name)
-    if min_component > 0:
-        comp = _component_labels(wf[kept], nv)
-        share = np.bincount(comp, weights=areas[kept]) / areas[kept].sum()
-        small = share[comp] < min_component
-        counts["small_components"] = int(np.count_nonzero(share < min_component))
-        counts["small_component_faces"] = int(np.count_nonzero(small))
-        kept = kept[~small]  # the largest component always stays (its share is at least its part)
-    work = wf[kept]
-    edge, forward, edge_count = _edge_table(work, nv)
-    pairs = _manifold_pairs(edge, edge_count)
-    turn = _orient_components(work, areas[kept], pairs, forward)
-    counts["reoriented"] = int(np.count_nonzero(turn))
-    work, pairs = _turn(work, turn, pairs)
-    counts["nonmanifold_edges"] = int(np.count_nonzero(edge_count > 2))
-    if counts["nonmanifold_edges"]:
-        more = _nonmanifold_pairs(v, work)
-        pairs = (np.concatenate([pairs[0], more[0]]), np.concatenate([pairs[1], more[1]]))
-    work, origin, counts["nonmanifold_vertices"] = _split_fans(work, nv, pairs)
-    if counts["nonmanifold_edges"]:  # splitting may leave an edge of more than two faces in a tangle
-        work, origin2, counts["detached_faces"] = _detach_crowded(work, origin.size)
-        origin = origin[origin2]
-        if counts["detached_faces"]:
-            work, origin3, _ = _split_fans(work, origin.size)
-            origin = origin[origin3]
-    counts["split_vertices"] = int(origin.size - nv)
+    work, origin, turn = _wound_and_split(v, wf[kept], areas[kept], counts)
     used = np.zeros(origin.size, bool)
     used[work.reshape(-1)] = True
-    counts["unreferenced"] = int(np.count_nonzero(~referenced))
     new = np.cumsum(used) - 1
     vertex_origin = origin[used]
     return Repair(

@@ -405,6 +405,49 @@ def read_result(out_dir: str | os.PathLike, *, check_animation: bool = True) -> 
         raise InputError("no such result folder", out_dir)
     deformed = _read_ply(out_dir / "deformed_source.ply")
     nv, faces = deformed.n_vertices, deformed.faces
+    maps = _read_maps(out_dir, nv, faces.shape[0])
+    nt = maps["map_face"].shape[0]
+    frames = _read_frames(out_dir / "frames", nv, faces)
+    k = frames.shape[0]
+    metrics_path = out_dir / "metrics.json"
+    metrics = _read_json(metrics_path)
+    if "frame_times" in metrics:
+        times = np.asarray(metrics["frame_times"], dtype=np.float64)
+        if times.shape != (k,):
+            raise InputError(f"'frame_times' has {times.size} entries but there are {k} frames", metrics_path)
+    else:
+        times = np.linspace(0.0, 1.0, k)
+    glb = out_dir / "animation.glb"
+    if not glb.is_file():
+        raise InputError("missing result file", glb)
+    if check_animation:
+        _check_glb(glb, k, nv)
+    skeleton, sk_frames = _read_skeleton(out_dir, k)
+    target_vertices = target_faces = None
+    target_path = out_dir / "target.ply"
+    if target_path.exists():
+        tm = _read_ply(target_path)
+        if tm.n_vertices != nt:
+            raise InputError(f"the target has {tm.n_vertices} vertices but the maps have {nt}", target_path)
+        target_vertices, target_faces = tm.vertices, tm.faces
+    return ResultFolder(
+        deformed_source=deformed.vertices,
+        source_faces=faces,
+        maps=maps,
+        frames=frames,
+        frame_times=times,
+        metrics=metrics,
+        skeleton_target=skeleton,
+        skeleton_frames=None if sk_frames is None else sk_frames["positions"],
+        joint_names=None if sk_frames is None else sk_frames["names"],
+        target_vertices=target_vertices,
+        target_faces=target_faces,
+        animation=glb,
+    )
+
+
+def _read_maps(out_dir: Path, nv: int, n_faces: int) -> dict[str, np.ndarray]:
+    """``map_tgt_to_src.npz`` and the two ``p2p`` files, checked against the source's size."""
     npz_path = out_dir / "map_tgt_to_src.npz"
     if not npz_path.is_file():
         raise InputError("missing result file", npz_path)
@@ -423,9 +466,9 @@ def read_result(out_dir: str | os.PathLike, *, check_animation: bool = True) -> 
         raise InputError(
             f"'bary' has NaN or infinite values in {int(bad.sum())} rows (first: row {int(np.argmax(bad))})", npz_path
         )
-    if nt and (face.min() < 0 or face.max() >= faces.shape[0]):
-        raise InputError(f"'face' indices outside [0, {faces.shape[0]}) (source faces)", npz_path)
-    p2p = {}
+    if nt and (face.min() < 0 or face.max() >= n_faces):
+        raise InputError(f"'face' indices outside [0, {n_faces}) (source faces)", npz_path)
+    maps = {"map_face": face.astype(np.int64), "map_bary": bary.astype(np.float64)}
     for name, n, upper in (("p2p_src_to_tgt", nv, nt), ("p2p_tgt_to_src", nt, nv)):
         path = out_dir / f"{name}.txt"
         if not path.is_file():
@@ -437,8 +480,12 @@ def read_result(out_dir: str | os.PathLike, *, check_animation: bool = True) -> 
             raise InputError(
                 f"indices span [{int(idx.min())}, {int(idx.max())}], expected 0-based in [0, {upper})", path
             )
-        p2p[name] = idx.astype(np.int64)
-    frames_dir = out_dir / "frames"
+        maps[name] = idx.astype(np.int64)
+    return {key: maps[key] for key in MAP_KEYS}
+
+
+def _read_frames(frames_dir: Path, nv: int, faces: np.ndarray) -> np.ndarray:
+    """(K, Vs, 3): ``frame_0000.ply`` … in order, each with the source's connectivity."""
     if not frames_dir.is_dir():
         raise InputError("missing result folder", frames_dir)
     numbered = sorted((int(m.group(1)), p) for p in frames_dir.iterdir() if (m := _FRAME_RE.match(p.name)))
@@ -457,60 +504,25 @@ def read_result(out_dir: str | os.PathLike, *, check_animation: bool = True) -> 
                 f"frame does not have the source connectivity ({m.n_vertices} vertices, expected {nv})", path
             )
         frames.append(m.vertices)
-    frames = np.stack(frames)
-    k = frames.shape[0]
-    metrics_path = out_dir / "metrics.json"
-    metrics = _read_json(metrics_path)
-    if "frame_times" in metrics:
-        times = np.asarray(metrics["frame_times"], dtype=np.float64)
-        if times.shape != (k,):
-            raise InputError(f"'frame_times' has {times.size} entries but there are {k} frames", metrics_path)
-    else:
-        times = np.linspace(0.0, 1.0, k)
-    glb = out_dir / "animation.glb"
-    if not glb.is_file():
-        raise InputError("missing result file", glb)
-    if check_animation:
-        _check_glb(glb, k, nv)
+    return np.stack(frames)
+
+
+def _read_skeleton(out_dir: Path, k: int):
+    """(the target skeleton, its frames) of the two skeleton files, or (None, None) without them."""
     tgf, sfj = out_dir / "skeleton_target.tgf", out_dir / "skeleton_frames.json"
-    skeleton = sk_frames = None
     if tgf.exists() != sfj.exists():
         raise InputError("missing result file (the skeleton files come together)", sfj if tgf.exists() else tgf)
-    if tgf.exists():
-        skeleton = load_skeleton(tgf)
-        sk_frames = read_skeleton_frames_json(sfj)
-        if sk_frames["positions"].shape[:2] != (k, skeleton.n_joints):
-            raise InputError(
-                f"positions have shape {sk_frames['positions'].shape}, expected ({k}, {skeleton.n_joints}, 3)", sfj
-            )
-        if not np.array_equal(sk_frames["parents"], skeleton.parents):
-            raise InputError("parents differ from skeleton_target.tgf", sfj)
-    target_vertices = target_faces = None
-    target_path = out_dir / "target.ply"
-    if target_path.exists():
-        tm = _read_ply(target_path)
-        if tm.n_vertices != nt:
-            raise InputError(f"the target has {tm.n_vertices} vertices but the maps have {nt}", target_path)
-        target_vertices, target_faces = tm.vertices, tm.faces
-    return ResultFolder(
-        deformed_source=deformed.vertices,
-        source_faces=faces,
-        maps={
-            "map_face": face.astype(np.int64),
-            "map_bary": bary.astype(np.float64),
-            "p2p_tgt_to_src": p2p["p2p_tgt_to_src"],
-            "p2p_src_to_tgt": p2p["p2p_src_to_tgt"],
-        },
-        frames=frames,
-        frame_times=times,
-        metrics=metrics,
-        skeleton_target=skeleton,
-        skeleton_frames=None if sk_frames is None else sk_frames["positions"],
-        joint_names=None if sk_frames is None else sk_frames["names"],
-        target_vertices=target_vertices,
-        target_faces=target_faces,
-        animation=glb,
-    )
+    if not tgf.exists():
+        return None, None
+    skeleton = load_skeleton(tgf)
+    sk_frames = read_skeleton_frames_json(sfj)
+    if sk_frames["positions"].shape[:2] != (k, skeleton.n_joints):
+        raise InputError(
+            f"positions have shape {sk_frames['positions'].shape}, expected ({k}, {skeleton.n_joints}, 3)", sfj
+        )
+    if not np.array_equal(sk_frames["parents"], skeleton.parents):
+        raise InputError("parents differ from skeleton_target.tgf", sfj)
+    return skeleton, sk_frames
 
 
 def result_target(
