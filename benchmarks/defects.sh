@@ -13,7 +13,8 @@
 #   bash benchmarks/defects.sh [WORK_DIR] [--pairs-only | ncflow benchmark options...]
 # (default ./defects; --pairs-only: build WORK_DIR/pairs/all.csv and stop).
 set -euo pipefail
-DATA="$(cd "$(dirname "$0")/../.." && pwd)/shared/data"
+HERE="$(cd "$(dirname "$0")" && pwd)"
+DATA="$(cd "$HERE/../.." && pwd)/shared/data"
 WORK="defects"
 if [[ $# -gt 0 && "$1" != --* ]]; then WORK="$1"; shift; fi
 PAIRS_ONLY=0
@@ -48,24 +49,7 @@ for case in clean fins all; do
   build quadruped12k "$case" --kind quadruped --seed 30 --articulation gallop --resolution 110 --target-resolution 100
 done
 
-python3 - <<'PY'
-# one csv for all folders; each folder holds one pair, named after the folder
-import csv
-from pathlib import Path
-
-rows, columns = [], []
-for csv_path in sorted(Path("pairs").glob("*/pairs.csv")):
-    d = csv_path.parent.name
-    for r in csv.DictReader(open(csv_path, newline="")):
-        paths = {k: f"{d}/{r[k]}" for k in ("source", "target", "skeleton", "gt", "target_motion") if r.get(k)}
-        rows.append({**r, **paths, "name": d})
-        columns += [c for c in r if c not in columns]
-with open("pairs/all.csv", "w", newline="") as fh:
-    w = csv.DictWriter(fh, fieldnames=columns, restval="")
-    w.writeheader()
-    w.writerows(rows)
-print(f"pairs/all.csv: {len(rows)} pairs")
-PY
+python3 "$HERE/merge_pairs.py" pairs
 echo "built the pairs in $((SECONDS - start)) s"
 [[ $PAIRS_ONLY == 1 ]] && exit 0
 

@@ -14,7 +14,8 @@
 # (default ./hard; --pairs-only: build WORK_DIR/pairs/all.csv and stop; other options, e.g.
 # --jobs 2 or --preset paper, go to ncflow benchmark, which writes WORK_DIR/report/report.md).
 set -euo pipefail
-DATA="$(cd "$(dirname "$0")/../.." && pwd)/shared/data"
+HERE="$(cd "$(dirname "$0")" && pwd)"
+DATA="$(cd "$HERE/../.." && pwd)/shared/data"
 WORK="hard"
 if [[ $# -gt 0 && "$1" != --* ]]; then WORK="$1"; shift; fi
 PAIRS_ONLY=0
@@ -56,24 +57,7 @@ else
   echo "skipping Fox: $GLTF/Fox.glb not found" >&2
 fi
 
-python3 - <<'PY'
-# one csv for all folders; each folder holds one pair, named after the folder; columns: the union
-import csv
-from pathlib import Path
-
-rows, columns = [], []
-for csv_path in sorted(Path("pairs").glob("*/pairs.csv")):
-    d = csv_path.parent.name
-    for r in csv.DictReader(open(csv_path, newline="")):
-        paths = {k: f"{d}/{r[k]}" for k in ("source", "target", "skeleton", "gt", "target_motion") if r.get(k)}
-        rows.append({**r, **paths, "name": d})
-        columns += [c for c in r if c not in columns]
-with open("pairs/all.csv", "w", newline="") as fh:
-    w = csv.DictWriter(fh, fieldnames=columns, restval="")
-    w.writeheader()
-    w.writerows(rows)
-print(f"pairs/all.csv: {len(rows)} pairs")
-PY
+python3 "$HERE/merge_pairs.py" pairs
 echo "built the pairs in $((SECONDS - start)) s"
 [[ $PAIRS_ONLY == 1 ]] && exit 0
 
