@@ -99,6 +99,7 @@ def test_padded_training_objective_equals_the_unpadded_one():
 
     from ncflow.geometry.mesh import Mesh
     from ncflow.matcher.objective import Arrays, Settings
+    from ncflow.matcher.place import place
     from ncflow.matcher.prepare import DTYPE, prepare
     from ncflow.matcher.stages import build_stages
     from ncflow.matcher.targets import target_measures
@@ -112,7 +113,7 @@ def test_padded_training_objective_equals_the_unpadded_one():
     cfg = _config(**{"sampling.surface_edges": 0, "weights.surface": 1.0})
     prob = prepare(Mesh(vs, fs, "s"), Mesh(bend(vs, 50.0), fs, "t"), skel, cfg)
     stages = build_stages(cfg)
-    targets = target_measures(prob, stages, cfg)
+    targets = target_measures(prob, place(prob, cfg), stages, cfg)
     st = stages[-1]
     target, yy, _ = targets[(st.metric, st.sigma, st.phase_config.sigma_normal)]
     params = init_params(jax.random.key(0), cfg, prob.skeleton_normalized)

@@ -72,7 +72,7 @@ def test_the_tests_run_with_the_jax_settings_users_get():
     from ncflow.jit.cache import SHARE_SETTINGS, share_executables
 
     assert all(os.environ.get(k) == str(v).lower() for k, v in SHARE_SETTINGS.items())  # as prepare_jax puts them
-    assert share_executables() and jax.config.jax_embedded_constants_max_bytes == 0
+    assert share_executables() and jax.config.jax_embedded_constants_max_bytes == 0  # JAX started with them
 
 
 IMPORT_ONLY = textwrap.dedent(
@@ -81,11 +81,8 @@ IMPORT_ONLY = textwrap.dedent(
     environ = dict(os.environ)
     import ncflow, ncflow.cli
     quiet = {"jax": "jax" in sys.modules, "environ": sorted(set(os.environ.items()) ^ set(environ.items()))}
-    ncflow.match  # the first use of a name that needs JAX: JAX starts with the match's settings
-    import jax
-    first_use = {k: jax.config.values.get(k) for k in ("jax_use_simplified_jaxpr_constants",
-                                                      "jax_embedded_constants_max_bytes")}
-    print(json.dumps({"import": quiet, "first_use": first_use}))
+    from ncflow.jit.cache import share_executables
+    print(json.dumps({"import": quiet, "shared": share_executables()}))
     """
 )
 
@@ -98,31 +95,31 @@ JAX_FIRST = textwrap.dedent(
     import ncflow, ncflow.cli, ncflow.runs
     ncflow.match, ncflow.transfer
     changed = sorted(k for k in before if before[k] != jax.config.values.get(k))
-    print(json.dumps({"changed": changed, "environ": sorted(set(os.environ.items()) ^ set(environ.items()))}))
-    from ncflow.matcher.steps import apply_runtime_settings
-    from ncflow.config import apply_overrides, preset
-    apply_runtime_settings(apply_overrides(preset("fast"), ["jit_cache=none"]))
-    print(json.dumps({k: jax.config.values.get(k) for k in ("jax_use_simplified_jaxpr_constants",
-                                                            "jax_embedded_constants_max_bytes")}))
+    from ncflow.jit.cache import share_executables
+    print(json.dumps({"changed": changed, "environ": sorted(set(os.environ.items()) ^ set(environ.items())),
+                      "shared": share_executables()}))
     """
 )
 
 
-def test_importing_ncflow_sets_nothing_and_a_match_applies_its_settings(tmp_path):
+def test_importing_ncflow_sets_only_the_jax_options_it_needs_from_the_start(tmp_path):
+    from ncflow.jit.cache import SHARE_SETTINGS
+
     env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_")}
 
     def run(script):
         return subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, check=True)
 
-    # import ncflow: no JAX, no environment; its first use starts JAX with the settings
+    # import ncflow: no JAX; the two sharing options in the environment, and JAX started later honours them
     got = json.loads(run(IMPORT_ONLY).stdout.splitlines()[-1])
-    assert got["import"] == {"jax": False, "environ": []}
-    assert got["first_use"] == {"jax_use_simplified_jaxpr_constants": True, "jax_embedded_constants_max_bytes": 0}
-    # a user's JAX, started first: ncflow leaves it (and the environment) alone until a match runs
-    out = run(JAX_FIRST).stdout.splitlines()
-    imported, applied = json.loads(out[-2]), json.loads(out[-1])
-    assert imported == {"changed": [], "environ": []}
-    assert applied == {"jax_use_simplified_jaxpr_constants": True, "jax_embedded_constants_max_bytes": 0}
+    assert got["import"] == {
+        "jax": False,
+        "environ": sorted([k, str(v).lower()] for k, v in SHARE_SETTINGS.items()),
+    }
+    assert got["shared"] is True
+    # a user's JAX, started first: ncflow changes neither it nor the environment, and says programs are not shared
+    got = json.loads(run(JAX_FIRST).stdout.splitlines()[-1])
+    assert got == {"changed": [], "environ": [], "shared": False}
 
 
 @pytest.mark.parametrize("per_octave", [1, 2, 4])

@@ -15,6 +15,7 @@ import pytest
 from ncflow.config import apply_overrides, preset, validate_config
 from ncflow.geometry.mesh import Mesh
 from ncflow.matcher.objective import Arrays, Settings, constraint_term, objective
+from ncflow.matcher.place import place
 from ncflow.matcher.prepare import DTYPE, prepare
 from ncflow.matcher.stages import build_stages
 from ncflow.matcher.targets import target_measures
@@ -50,7 +51,7 @@ def problem():
     cfg = _config()
     prob = prepare(Mesh(vs, fs, "s"), Mesh(bend(vt, 50.0), ft, "t"), skel, cfg)
     stages = build_stages(cfg)
-    return cfg, prob, stages, target_measures(prob, stages, cfg)
+    return cfg, prob, stages, target_measures(prob, place(prob, cfg), stages, cfg)
 
 
 def test_constraint_term_matches_brute_force():

@@ -6,17 +6,23 @@ in the submodules (``ncflow.measures``, ``ncflow.skeleton``, ``ncflow.flow``, ``
 (``from ncflow.matcher.prepare import prepare``); ``ncflow.transfer`` and the rig are in
 :mod:`ncflow.retarget`.
 
-Importing ncflow imports nothing heavy and sets nothing: each public name is loaded when it is first
-used. Before that first use loads JAX, the JAX options a match wants from the start are put in the
-environment (:func:`ncflow.jit.cache.prepare_jax`, which leaves a user's own settings and an already
-started JAX alone), and a match applies the rest when it runs.
+Importing ncflow imports nothing heavy (no JAX) and does one thing: when JAX has not started yet, it puts
+the two JAX options that let pairs of similar size share compiled programs in the environment
+(:func:`ncflow.jit.cache.prepare_jax`; JAX reads them once, when it starts, and takes them from nowhere
+else; a user's own values stay). Each public name is loaded when it is first used; a match applies the
+rest of its settings (the compilation cache) when it runs.
 """
 
 from __future__ import annotations
 
 import importlib
 
+from ncflow.jit.cache import prepare_jax
+
 __version__ = "0.3.0"
+
+prepare_jax()
+del prepare_jax
 
 _PUBLIC = {
     "Config": "ncflow.config",
@@ -56,9 +62,6 @@ def __getattr__(name: str):
     """A public name, loaded at its first use (PEP 562)."""
     if name not in _PUBLIC:
         raise AttributeError(f"module 'ncflow' has no attribute {name!r}")
-    from ncflow.jit.cache import prepare_jax
-
-    prepare_jax()
     value = getattr(importlib.import_module(_PUBLIC[name]), name)
     globals()[name] = value
     return value

@@ -66,11 +66,10 @@ executable."""
 
 def prepare_jax() -> bool:
     """Put the JAX options of :data:`SHARE_SETTINGS` in the environment, before JAX is imported, so that
-    JAX starts with them (it reads them once, when imported: set later, through its configuration, they
-    take effect only in part, and the compiled programs come out otherwise in their last bits). A
-    user's own settings stay; an already imported JAX is left alone (:func:`share_executables` then sets
-    them as far as JAX allows). Called by the ``ncflow`` command before anything else and by the first
-    use of a public name of ``ncflow``, never by ``import ncflow``. Returns whether it set them.
+    JAX starts with them: it reads them once, when imported (set later through its configuration, they
+    do not take effect: :func:`share_executables`). A user's own settings stay; an already imported JAX
+    is left alone. Called by ``import ncflow`` (the one thing importing ncflow does) and by the
+    ``ncflow`` command. Returns whether it set them.
     """
     import sys
 
@@ -82,18 +81,19 @@ def prepare_jax() -> bool:
 
 
 def share_executables() -> bool:
-    """Let one compiled program serve every array value of the same shape (see the module docstring):
-    closed-over arrays become arguments of the executable. Sets the JAX options of
-    :data:`SHARE_SETTINGS` whose environment variables are not set (JAX read those when it was imported:
-    :func:`prepare_jax`) and returns whether closed-over arrays are now arguments. Called when a match
-    runs.
+    """Whether one compiled program serves every array value of the same shape (see the module
+    docstring): closed-over arrays are arguments of the executable. That holds when JAX started with
+    the options of :data:`SHARE_SETTINGS` (:func:`prepare_jax`: ncflow imported before JAX, or the
+    variables set by the user); JAX started without them ignores them when set later, and every pair
+    then compiles its own programs (the results are the same). Found by lowering a small program that
+    closes over an array. Called when a match runs.
     """
     import jax
+    import numpy as np
 
-    for name, value in SHARE_SETTINGS.items():
-        if name not in os.environ:
-            jax.config.update(name.lower(), value)
-    return bool(jax.config.values.get("jax_use_simplified_jaxpr_constants", False))
+    values = np.zeros(3, np.float32)
+    text = jax.jit(lambda x: x + values).lower(np.zeros(3, np.float32)).as_text()
+    return "dense<" not in text
 
 
 def configure_compilation_cache(setting: str = "auto") -> Path | None:

@@ -25,7 +25,7 @@ import time
 import jax
 
 from ncflow.config import Config, preset, validate_config
-from ncflow.jit.cache import configure_compilation_cache, share_executables
+from ncflow.jit.cache import configure_compilation_cache
 from ncflow.matcher.place import Placed, place
 from ncflow.matcher.prepare import prepare
 from ncflow.matcher.programs import build_programs
@@ -74,10 +74,9 @@ def match(
 
 def apply_runtime_settings(config: Config) -> None:
     """What a match sets in JAX for the process: the persistent compilation cache of ``config.jit_cache``
-    and closed-over arrays as arguments of compiled programs (:func:`ncflow.jit.cache.share_executables`).
-    Nothing is set by importing ncflow; the settings apply from the first match on.
+    (from the first match on). The options that let pairs share compiled programs are JAX's at its start
+    (:func:`ncflow.jit.cache.prepare_jax`, run by ``import ncflow``).
     """
-    share_executables()
     configure_compilation_cache(config.jit_cache)
 
 
