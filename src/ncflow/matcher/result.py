@@ -35,6 +35,7 @@ from ncflow.matcher.placement import Placement
 from ncflow.matcher.prepare import DTYPE, Setup
 from ncflow.matcher.programs import Programs, output_flow_inputs, output_frame_times
 from ncflow.matcher.train import Trained, TrainingError, TrainState
+from ncflow.optim.mdmm import multiplier_ceiling
 from ncflow.skeleton import Skeleton
 from ncflow.skeleton.kinematics import Pose
 
@@ -231,6 +232,39 @@ def _bone_rows(skeleton: Skeleton, g_ep, g_tr, lam, eps: float, scale: float) ->
     ]
 
 
+def bones_beyond_tolerance(rows: list[dict], eps: float, ceiling: float) -> tuple[list[dict], str | None]:
+    """The bones that end beyond ε (from :func:`_bone_rows`, largest violation first) and the warning
+    that names them with g/ε and says which of two causes the run shows: multipliers at ``ceiling``
+    (within 10 % of :func:`~ncflow.optim.mdmm.multiplier_ceiling`: the data term out-pulled the constraint for the
+    whole run, as when the skeleton cannot reach the target) or below it (held in training, beyond ε on
+    the final fresh samples). None when every bone holds.
+    """
+    beyond = []
+    for r in rows:
+        ratio = max(r["g_endpoint"], r["g_trajectory"]) / eps
+        if ratio > 1.0:
+            at_ceiling = max(r["multiplier_endpoint"], r["multiplier_trajectory"]) >= 0.9 * ceiling > 0
+            beyond.append({"bone": r["bone"], "violation_ratio": ratio, "multiplier_at_ceiling": bool(at_ceiling)})
+    beyond.sort(key=lambda b: -b["violation_ratio"])
+    if not beyond:
+        return beyond, None
+    named = ", ".join(f"{b['bone']} ({b['violation_ratio']:.2g} ε)" for b in beyond[:5])
+    more = f" and {len(beyond) - 5} more" if len(beyond) > 5 else ""
+    pulled = sum(b["multiplier_at_ceiling"] for b in beyond)
+    if pulled:
+        cause = (
+            f"{pulled} of them with multipliers at the most the schedule reaches ({ceiling:.0f}): the target "
+            "pulls them off rigid for the whole run; the skeleton may not reach it (a bone of another length, "
+            "a joint the skeleton lacks, a limb the target misses)"
+        )
+    else:
+        cause = (
+            "held during training, beyond ε on the final fresh samples "
+            "(constraints.margin: how far below ε training aims)"
+        )
+    return beyond, f"{len(beyond)} of {len(rows)} bones end beyond their tolerance ε: {named}{more}; {cause}"
+
+
 def _metrics(setup, placed, trained, programs, targets, cfg, g_ep, g_tr, maps, timings, waited) -> dict:
     """Everything ``metrics.json`` says of a match."""
     norm, skeleton, eps = setup.normalization, setup.skeleton, cfg.constraints.eps
@@ -240,6 +274,9 @@ def _metrics(setup, placed, trained, programs, targets, cfg, g_ep, g_tr, maps, t
         timings["compile_ahead_wait"] = timings.get("compile_ahead_wait", 0.0) + waited
     timings["total"] = sum(v for k, v in timings.items() if k in ("setup", "train", "outputs"))
     search = placed.pose_search
+    bones = _bone_rows(skeleton, g_ep, g_tr, trained.state.lam, eps, norm.scale)
+    ceiling = multiplier_ceiling(cfg.constraints.multiplier_lr, cfg.total_steps)
+    beyond, warning = bones_beyond_tolerance(bones, eps, ceiling)
     return {
         "ncflow_version": __version__,
         "seed": cfg.seed,
@@ -259,7 +296,8 @@ def _metrics(setup, placed, trained, programs, targets, cfg, g_ep, g_tr, maps, t
             "max_g_trajectory": float(g_tr.max()),
             "max_violation_ratio": float(max(g_ep.max(), g_tr.max()) / eps),
             "all_satisfied": bool(np.all(g_ep <= eps) and np.all(g_tr <= eps)),
-            "bones": _bone_rows(skeleton, g_ep, g_tr, trained.state.lam, eps, norm.scale),
+            "bones": bones,
+            "beyond_tolerance": beyond,
         },
         "correspondence": {
             "mean_distance_target_to_flowed_source": float(np.mean(maps["dist_tgt_to_src"]) / norm.scale),
@@ -270,7 +308,7 @@ def _metrics(setup, placed, trained, programs, targets, cfg, g_ep, g_tr, maps, t
         "tissue": setup.tissue_info,
         "normalization": norm.to_dict(),
         "placement": placed.placement.to_dict(norm.scale),
-        "warnings": list(setup.warnings),
+        "warnings": list(setup.warnings) + ([warning] if warning and cfg.constraints.mode == "mdmm" else []),
         "timings": timings,
         "config": config_to_dict(cfg),
         "versions": _versions(),

@@ -147,4 +147,7 @@ class Matcher:
         timings = dict(self.timings, train=train_seconds, per_step=train_seconds / max(trained.steps, 1))
         if programs.ahead:
             timings["compile_ahead_wait"] = waited
-        return build_result(self.setup, self.placed, trained, programs, self.targets, cfg, k_eval, timings)
+        result = build_result(self.setup, self.placed, trained, programs, self.targets, cfg, k_eval, timings)
+        for warning in result.metrics["warnings"][len(self.setup.warnings) :]:  # what the training left
+            self.progress.message(f"warning: {warning}")
+        return result

@@ -5,6 +5,7 @@
 from ncflow.optim.mdmm import (
     ascend_multipliers,
     mdmm_term,
+    multiplier_ceiling,
     multiplier_rate,
     soft_constraint_term,
     violation,
@@ -21,6 +22,7 @@ from ncflow.optim.schedules import warmup_constant, warmup_cosine
 __all__ = [
     "adabelief_cautious",
     "ascend_multipliers",
+    "multiplier_ceiling",
     "multiplier_rate",
     "cautious",
     "is_vector_array",

@@ -86,3 +86,12 @@ def soft_constraint_term(
     if reduction == "mean":
         return jnp.mean(per)
     raise ValueError(f"reduction must be 'sum' or 'mean', got {reduction!r}")
+
+
+def multiplier_ceiling(lr: float, n_steps: int) -> float:
+    """The largest multiplier :func:`ascend_multipliers` reaches in a run of ``n_steps`` steps at the
+    ramped rate of :func:`multiplier_rate` (step d at progress d / n_steps), rising every step:
+    Σ_d 2η d / n = η (n − 1). A constraint still violated with its multiplier there is one the data term
+    out-pulls for the whole run.
+    """
+    return float(lr) * max(int(n_steps) - 1, 0)
