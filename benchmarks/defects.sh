@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The defect corpus of issue 48: imperfect targets (ncflow make-pairs --defects) on four bases, each
 # defect alone and all combined, plus a 12k-vertex pair (source decimated for training) clean, with fins
-# and with every defect:
+# and with every defect, and Fox with a coarse target (904 faces) clean, as a soup and with every defect:
 #   bases: Fox (Walk, t = 0 -> 0.35 s, retriangulated), a generated quadruped galloping, a generated
 #   humanoid, MANO rows 0 -> 777 (retriangulated);
 #   cases: clean, soup, degenerate, duplicates, stray, fins, fragment, fragment-flipped, pinch, all
@@ -48,6 +48,11 @@ done
 for case in clean fins all; do
   build quadruped12k "$case" --kind quadruped --seed 30 --articulation gallop --resolution 110 --target-resolution 100
 done
+if [[ -f "$DATA/gltf/Fox.glb" ]]; then  # a coarse target: as a soup, more vertices than the overlap test's 1000, few faces
+  for case in clean soup all; do
+    build foxcoarse "$case" --gltf "$DATA/gltf/Fox.glb" --animation Walk --times 0,0.35 --retriangulate --target-resolution 24
+  done
+fi
 
 python3 "$HERE/merge_pairs.py" pairs
 echo "built the pairs in $((SECONDS - start)) s"
