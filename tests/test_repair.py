@@ -155,6 +155,20 @@ def test_small_components_are_left_out_only_when_asked():
     assert not repair_mesh(vv, ff, min_component=0.5 * share).changed
 
 
+def test_fins_torn_off_by_the_split_are_small_components():
+    """Fins on a closed surface: the split tears each off as a component of its own, so a share above
+    theirs leaves exactly the surface's own faces, and none leaves them all."""
+    v, f = capsule(n_around=14, n_along=12)
+    dv, df, _ = defective_mesh(v, f, ["fins"], seed=5)
+    everything = repair_mesh(dv, df)
+    assert everything.counts["small_components"] == 0 and everything.faces.shape[0] == df.shape[0]
+    rep = repair_mesh(dv, df, min_component=0.05)
+    np.testing.assert_array_equal(np.sort(rep.face_origin), np.arange(f.shape[0]))
+    assert rep.counts["small_component_faces"] == df.shape[0] - f.shape[0]
+    assert check_repaired(rep.vertices, rep.faces) is None
+    assert face_areas(rep.vertices, rep.faces).sum() == pytest.approx(face_areas(v, f).sum(), rel=1e-12)
+
+
 def test_nothing_left_is_a_one_line_error_naming_the_file():
     v = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 1, 0]])
     with pytest.raises(InputError, match=r"^bad\.obj: none of its 2 faces has an area"):

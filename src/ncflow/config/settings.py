@@ -211,8 +211,9 @@ class RepairConfig:
     exactly coincident vertices are welded, zero-area and duplicate faces dropped, non-manifold edges and
     vertices split. ``weld_tolerance``: weld vertices closer than this fraction of the mesh's
     bounding-box diagonal too (0: exactly coincident ones only; at most 0.01). ``min_component``: leave
-    out of the data terms the connected components with less than this share of a mesh's area (debris
-    of a scan; 0 keeps every component). The outputs keep one row per vertex of the files either way.
+    out of the data terms the connected components (after the split) with less than this share of a
+    mesh's area: the fins the split tears off a surface, the debris of a scan (default 0.5 %; 0 keeps
+    every component). The outputs keep one row per vertex of the files either way.
     """
 
     weld_tolerance: float = setting(
@@ -221,7 +222,7 @@ class RepairConfig:
         hi=MAX_WELD_TOLERANCE,
         message=f"{{name}} must be in [0, {MAX_WELD_TOLERANCE:g}] (a fraction of the mesh's size)",
     )
-    min_component: float = setting(0.0, lo=0, below=1, message="{name} must be in [0, 1) (a share of the mesh's area)")
+    min_component: float = setting(0.005, lo=0, below=1, message="{name} must be in [0, 1) (a share of the mesh's area)")
 
 
 OFF_WORDS = ("auto", "none", "off", "0", "false", "no")

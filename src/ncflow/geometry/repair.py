@@ -9,14 +9,15 @@ elements. In order:
    bounding-box diagonal): a triangle soup or a mesh split at its texture seams is one surface again;
 2. **degenerate faces** (a repeated corner, or area ≤ :data:`AREA_TOL` × diagonal²) are dropped;
 3. **duplicate faces** (the same three corners, either winding) are dropped but the first;
-4. **small components** (their area below ``min_component`` of the whole) are dropped, when asked;
-5. **winding**: the faces of each orientable component are wound one way, the way most of its area
+4. **winding**: the faces of each orientable component are wound one way, the way most of its area
    already is (a patch wound against its neighbours is turned);
-6. **non-manifold vertices and edges** are split: on an edge of more than two faces, the faces that
+5. **non-manifold vertices and edges** are split: on an edge of more than two faces, the faces that
    bound one piece of the solid are paired (ordered by angle about the edge); then each vertex gets
    one copy per fan of faces joined through edges of two faces or such pairs, so the fins, flaps and
    pinches of a mesh come apart from the surface they touch; a face still left on an edge with more
    than two faces gets its own corners;
+6. **small components** (their area below ``min_component`` of the whole), counted after the split so
+   that a fin torn off a surface is a component of its own, are dropped, when asked;
 7. unreferenced vertices are left out.
 
 Nothing moves: every repaired vertex is an input vertex (:attr:`Repair.vertex_origin`) and every
@@ -62,7 +63,7 @@ class Repair:
         vertex_origin: (W,) the input vertex each repaired vertex is (the first of a welded group;
             the same vertex for each copy of a split one).
         face_origin: (G,) the input face each repaired face is.
-        flipped: (G,) bool, the faces wound against their input face (step 5).
+        flipped: (G,) bool, the faces wound against their input face (step 4).
         counts: what was done, by kind (every kind present, 0 when nothing).
     """
 
@@ -366,10 +367,8 @@ COUNTS = (
 """What :attr:`Repair.counts` counts, in the order :meth:`Repair.summary` says it."""
 
 
-def _kept_faces(v, wf, areas, diag: float, min_component: float, counts: dict) -> np.ndarray:
-    """The faces that stay (steps 2–4): neither degenerate nor a duplicate of an earlier one, nor in a
-    component under ``min_component`` of the area.
-    """
+def _kept_faces(v, wf, areas, diag: float, counts: dict) -> np.ndarray:
+    """The faces that stay (steps 2–3): neither degenerate nor a duplicate of an earlier one."""
     nv = v.shape[0]
     repeated = (wf[:, 0] == wf[:, 1]) | (wf[:, 1] == wf[:, 2]) | (wf[:, 0] == wf[:, 2])
     keep = ~(repeated | (areas <= AREA_TOL * diag**2))
@@ -377,19 +376,25 @@ def _kept_faces(v, wf, areas, diag: float, min_component: float, counts: dict) -
     kept = np.flatnonzero(keep)
     _, first = np.unique(_face_keys(wf[kept], nv), axis=0, return_index=True)
     counts["duplicate"] = int(kept.size - first.size)
-    kept = kept[np.sort(first)]
-    if min_component > 0 and kept.size:
-        comp = _component_labels(wf[kept], nv)
-        share = np.bincount(comp, weights=areas[kept]) / areas[kept].sum()
-        small = share[comp] < min_component
-        counts["small_components"] = int(np.count_nonzero(share < min_component))
-        counts["small_component_faces"] = int(np.count_nonzero(small))
-        kept = kept[~small]  # the largest component always stays (its share is at least its part)
-    return kept
+    return kept[np.sort(first)]
+
+
+def _large_components(work: np.ndarray, n_vertices: int, areas: np.ndarray, min_component: float, counts: dict):
+    """(F,) bool: the faces of the split mesh (step 6) in components of at least ``min_component`` of
+    the area; the largest component always stays (its share is at least its part).
+    """
+    if min_component <= 0 or work.shape[0] == 0:
+        return np.ones(work.shape[0], bool)
+    comp = _component_labels(work, n_vertices)
+    share = np.bincount(comp, weights=areas) / areas.sum()
+    small = share[comp] < min_component
+    counts["small_components"] = int(np.count_nonzero(share < min_component))
+    counts["small_component_faces"] = int(np.count_nonzero(small))
+    return ~small
 
 
 def _wound_and_split(v, work, areas, counts: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Steps 5–6 on the kept faces: (faces wound one way per component and split where non-manifold,
+    """Steps 4–5 on the kept faces: (faces wound one way per component and split where non-manifold,
     for each vertex its input vertex, which faces were turned).
     """
     nv = v.shape[0]
@@ -428,7 +433,8 @@ def repair_mesh(
         faces: (F, 3) vertex indices in range.
         weld_tolerance: weld vertices closer than this × the bounding-box diagonal (0: exactly
             coincident vertices only; at most :data:`MAX_WELD_TOLERANCE`).
-        min_component: leave out connected components with less than this share of the area (0: keep all).
+        min_component: leave out connected components (after the split) with less than this share of the
+            area (0: keep all).
         name: the file, for the error message.
 
     Raises:
@@ -450,10 +456,12 @@ def repair_mesh(
     counts["unreferenced"] = int(np.count_nonzero(~referenced))
     wf = group[f]
     areas = _face_areas(v, wf)
-    kept = _kept_faces(v, wf, areas, diag, min_component, counts)
+    kept = _kept_faces(v, wf, areas, diag, counts)
     if kept.size == 0:
         raise InputError(f"none of its {f.shape[0]} faces has an area (every face is degenerate)", name)
     work, origin, turn = _wound_and_split(v, wf[kept], areas[kept], counts)
+    large = _large_components(work, origin.size, areas[kept], min_component, counts)
+    work, kept, turn = work[large], kept[large], turn[large]
     used = np.zeros(origin.size, bool)
     used[work.reshape(-1)] = True
     new = np.cumsum(used) - 1
