@@ -222,7 +222,9 @@ class RepairConfig:
         hi=MAX_WELD_TOLERANCE,
         message=f"{{name}} must be in [0, {MAX_WELD_TOLERANCE:g}] (a fraction of the mesh's size)",
     )
-    min_component: float = setting(0.005, lo=0, below=1, message="{name} must be in [0, 1) (a share of the mesh's area)")
+    min_component: float = setting(
+        0.005, lo=0, below=1, message="{name} must be in [0, 1) (a share of the mesh's area)"
+    )
 
 
 OFF_WORDS = ("auto", "none", "off", "0", "false", "no")
