@@ -57,6 +57,9 @@ def small_config(**overrides):
 def capsules():
     vs, fs = capsule(radius=0.4, length=3.0, n_around=12, n_along=18)
     vt, ft = capsule(radius=0.4, length=3.0, n_around=14, n_along=15, diagonal="left")
+    # tapered (a third wider at the top), so that no end-to-end turn of the capsule matches it as well
+    vs[:, :2] *= 1.0 + 0.33 * (vs[:, 2:] + 1.9) / 3.8
+    vt[:, :2] *= 1.0 + 0.33 * (vt[:, 2:] + 1.9) / 3.8
     skel = Skeleton.from_arrays(np.array([[0, 0, -1.6], [0, 0, 0.0], [0, 0, 1.6]]), np.array([-1, 0, 1]))
     # each target vertex is the bent image of its rest place, whose closest source point is its true match
     _, face, bary = closest_points_on_surface(vt, vs, fs)
@@ -135,7 +138,7 @@ def test_a_match_on_every_defect_at_once_ends_in_a_result_with_a_row_per_file_ve
     # the target's own vertices find their true source points (the pose search bends the capsule)
     own = origin >= 0
     error = np.linalg.norm(points[own] - truth[origin[own]], axis=1)
-    assert np.median(error) < 0.15  # measured 0.049 (the capsule is 3.8 long)
+    assert np.median(error) < 0.15  # measured 0.057 (the capsule is 3.8 long)
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["repair"]["target"]["welded"] > 0 and metrics["repair"]["source"]["duplicate"] > 0
     assert metrics["repair"]["target"]["nonmanifold_edges"] > 0
