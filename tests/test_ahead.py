@@ -20,19 +20,9 @@ from ncflow.matcher.steps import Matcher
 from ncflow.matcher.targets import target_measures, target_stand_ins
 from ncflow.skeleton import Skeleton
 from ncflow.synthetic.shapes import bend, capsule
+from tiny import TINY as TINY_SETTINGS
 
-TINY = [
-    "flow.width=8",
-    "flow.depth=1",
-    "flow.gso_width=4",
-    "flow.gso_depth=1",
-    "flow.n_times=3",
-    "sampling.bone_samples=5",
-    "sampling.tissue_samples=16",
-    "sampling.surface_edges=64",
-    "frames=3",
-    "jit_cache=none",
-]
+TINY = [*TINY_SETTINGS, "jit_cache=none"]
 
 
 def _pair():

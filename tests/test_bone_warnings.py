@@ -13,6 +13,7 @@ from ncflow.matcher.result import bones_beyond_tolerance
 from ncflow.optim.mdmm import ascend_multipliers, multiplier_ceiling, multiplier_rate
 from ncflow.skeleton import Skeleton
 from ncflow.synthetic.shapes import capsule
+from tiny import TINY
 
 
 @pytest.mark.parametrize(("lr", "n"), [(1.0, 400), (0.5, 37), (2.0, 1)])
@@ -64,9 +65,7 @@ def test_bones_a_stretched_target_pulls_beyond_tolerance_are_named_in_a_warning(
     vt = vs.copy()
     vt[:, 2] = np.where(vt[:, 2] > 0, 1.6 * vt[:, 2], vt[:, 2])
     skel = Skeleton.from_arrays(np.array([[0, 0, -1.6], [0, 0, 0.0], [0, 0, 1.6]]), np.array([-1, 0, 1]))
-    tiny = ["flow.width=8", "flow.depth=1", "flow.gso_width=4", "flow.gso_depth=1", "flow.n_times=3",
-            "sampling.bone_samples=5", "sampling.tissue_samples=16", "sampling.surface_edges=64",
-            "compress=200", "frames=3", "placement=none", "pose_search=false"]  # fmt: skip
+    tiny = [*TINY, "compress=200", "placement=none", "pose_search=false"]
     cfg = scale_steps(apply_overrides(preset("fast"), tiny), 30)
     result = ncflow.match(Mesh(vs, fs, "source"), Mesh(vt, fs, "stretched"), skel, cfg, quiet=True)
     c, eps = result.metrics["constraints"], cfg.constraints.eps

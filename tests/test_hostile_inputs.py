@@ -554,7 +554,7 @@ def test_one_mesh_instanced_by_5000_nodes_is_refused_quickly(tmp_path):
     start = time.perf_counter()
     with pytest.raises(InputError) as ei:
         load_mesh(path)
-    assert time.perf_counter() - start < 5.0
+    assert time.perf_counter() - start < 30.0  # a loose bound (about 1 s alone; 9 s seen beside a benchmark)
     one_line(ei, path, "5000 mesh instances", str(MAX_MESH_INSTANCES))
     doc, _ = gltf_document(n_mesh_nodes=3, skinned=False)  # a few instances still load
     assert load_mesh(write_gltf(tmp_path / "few.gltf", doc), weld=False).n_faces == 3

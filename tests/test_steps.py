@@ -20,19 +20,9 @@ from ncflow.matcher.targets import target_measures
 from ncflow.matcher.train import train
 from ncflow.skeleton import Skeleton
 from ncflow.synthetic.shapes import bend, capsule
+from tiny import TINY as TINY_SETTINGS
 
-TINY = [
-    "flow.width=8",
-    "flow.depth=1",
-    "flow.gso_width=4",
-    "flow.gso_depth=1",
-    "flow.n_times=3",
-    "sampling.bone_samples=5",
-    "sampling.tissue_samples=16",
-    "sampling.surface_edges=64",
-    "compress=200",
-    "frames=3",
-]
+TINY = [*TINY_SETTINGS, "compress=200"]
 
 
 @pytest.fixture(scope="module")
