@@ -288,3 +288,23 @@ def test_geodesic_errors_on_a_soup_are_those_of_the_welded_source():
     clean = geodesic_errors(Mesh(v, f), pf, pb, gf, gb, method="heat")
     np.testing.assert_allclose(geodesic_errors(soup, pf, pb, gf, gb, method="heat"), clean, rtol=1e-9)
     assert np.all(np.isfinite(clean))  # on the soup as given, every pair would be apart (+inf)
+
+
+def test_vertex_components_match_a_brute_force_flood_fill():
+    from ncflow.geometry.topology import vertex_components
+
+    rng = np.random.default_rng(7)
+    faces = rng.integers(0, 40, size=(25, 3))
+    labels = vertex_components(faces, 45)  # vertices 40–44 and unreferenced ones: components of their own
+    neighbours = {i: set() for i in range(45)}
+    for a, b, c in faces.tolist():
+        for x, y in ((a, b), (b, c), (c, a)):
+            neighbours[x].add(y)
+            neighbours[y].add(x)
+    for start in range(45):
+        seen, todo = {start}, [start]
+        while todo:
+            for n in neighbours[todo.pop()] - seen:
+                seen.add(n)
+                todo.append(n)
+        assert {i for i in range(45) if labels[i] == labels[start]} == seen

@@ -42,6 +42,7 @@ from jaxtyping import Float, Int
 
 from ncflow.geometry.barycentric import surface_points
 from ncflow.geometry.mesh import face_areas
+from ncflow.geometry.topology import vertex_components
 
 # barycentric clamp for inserted points: keeps them strictly inside their face (moves a point by
 # at most this fraction of the face size, far below any reported precision)
@@ -169,15 +170,6 @@ def insert_surface_points(
     return np.concatenate([vertices, new_pos]), np.concatenate(new_faces).astype(np.int64), out
 
 
-def _components(faces: np.ndarray, n_vertices: int) -> np.ndarray:
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    g = coo_matrix((np.ones(e.shape[0]), (e[:, 0], e[:, 1])), shape=(n_vertices, n_vertices))
-    return connected_components(g, directed=False)[1]
-
-
 def _exact_pairs(vertices: np.ndarray, faces: np.ndarray, face_a, bary_a, face_b, bary_b) -> np.ndarray:
     """Exact polyhedral geodesic lengths for pairs known to lie on one connected component."""
     import potpourri3d as pp3d
@@ -284,7 +276,7 @@ def pair_geodesic_distances(
     if n == 0:
         return out, info
 
-    comp = _components(f, v.shape[0])
+    comp = vertex_components(f, v.shape[0])
     reach = comp[f[fa, 0]] == comp[f[fb, 0]]
     out[~reach] = np.inf
     info.n_unreachable = int((~reach).sum())

@@ -41,6 +41,7 @@ from jaxtyping import Float, Int
 
 from ncflow.errors import InputError
 from ncflow.geometry.closest import closest_points_on_surface
+from ncflow.geometry.topology import vertex_components
 
 AREA_TOL = 1e-12
 """Faces with area at most this × (bounding-box diagonal)² count as zero-area."""
@@ -324,15 +325,8 @@ def _detach_crowded(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.
 
 
 def _component_labels(faces: np.ndarray, n_vertices: int) -> np.ndarray:
-    """(F,) the connected component of each face (faces joined through shared vertices)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    nf = faces.shape[0]
-    rows = np.repeat(np.arange(nf), 3)
-    graph = coo_matrix((np.ones(rows.size), (rows, nf + faces.reshape(-1))), shape=(nf + n_vertices,) * 2)
-    _, label = connected_components(graph, directed=False)
-    return label[:nf]
+    """(F,) the connected component of each face (faces joined through shared vertices), numbered 0, 1, …"""
+    return np.unique(vertex_components(faces, n_vertices)[faces[:, 0]], return_inverse=True)[1].reshape(-1)
 
 
 def _face_keys(faces: np.ndarray, n_vertices: int) -> np.ndarray:

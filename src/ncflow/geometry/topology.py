@@ -172,3 +172,16 @@ def close_boundary(
     ) / np.maximum(count, 1)
     cap = np.stack([start, end, nv + loop_of_edge], axis=1)
     return np.concatenate([vertices, centroids]), np.concatenate([faces, cap])
+
+
+def vertex_components(faces: Int[np.ndarray, "F 3"], n_vertices: int) -> Int[np.ndarray, " V"]:
+    """(V,) the connected component of each vertex, vertices joined through the faces' edges (a vertex in
+    no face is a component of its own); labels 0, 1, … as SciPy numbers them.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    f = np.asarray(faces, np.int64).reshape(-1, 3)
+    rows, cols = f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)
+    graph = coo_matrix((np.ones(rows.size), (rows, cols)), shape=(n_vertices, n_vertices))
+    return connected_components(graph, directed=False)[1]

@@ -39,7 +39,6 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
 from jaxtyping import Bool, Float, Int
-from scipy.sparse.csgraph import connected_components
 from scipy.sparse.linalg import splu
 
 from ncflow.errors import InputError
@@ -48,6 +47,7 @@ from ncflow.geometry.barycentric import surface_points
 from ncflow.geometry.laplacian import cotangent_laplacian, lumped_mass
 from ncflow.geometry.mesh import orientation, vertex_normals
 from ncflow.geometry.rigid import dense_weights
+from ncflow.geometry.topology import vertex_components
 from ncflow.io.gltf.skins import GltfSkin
 
 __all__ = [
@@ -67,15 +67,6 @@ DEFAULT_MAX_NORMAL_ANGLE = 30.0
 """Reliability: largest angle (degrees) between the target's normal and the flowed source's."""
 DEFAULT_SKINNING_WIDTH = 0.05
 """τ of the skeleton-driven field's weights as a fraction of the median bone length (``flow.skinning_width``)."""
-
-
-def _components(faces: np.ndarray, n: int) -> np.ndarray:
-    """(n,) connected-component label of every vertex (a vertex in no face is its own component)."""
-    f = np.asarray(faces, dtype=np.int64)
-    rows = np.concatenate([f[:, 0], f[:, 1], f[:, 2]])
-    cols = np.concatenate([f[:, 1], f[:, 2], f[:, 0]])
-    graph = sp.coo_matrix((np.ones(rows.size), (rows, cols)), shape=(n, n))
-    return connected_components(graph, directed=False)[1]
 
 
 def inpaint_weights(
@@ -113,7 +104,7 @@ def inpaint_weights(
     if known.shape != (n,) or x.shape[0] != n:
         raise ValueError(f"values ({x.shape[0]} rows) and known ({known.shape[0]}) must have one row per vertex ({n})")
     # components without any known vertex keep the given rows
-    label = _components(f, n)
+    label = vertex_components(f, n)
     has_known = np.zeros(label.max() + 1 if n else 0, dtype=bool)
     has_known[label[known]] = True
     fixed = known | ~has_known[label]
