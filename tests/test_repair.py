@@ -155,6 +155,17 @@ def test_small_components_are_left_out_only_when_asked():
     assert not repair_mesh(vv, ff, min_component=0.5 * share).changed
 
 
+def test_a_mesh_of_many_pieces_each_under_the_share_keeps_its_largest():
+    """300 separate triangles, each under 0.5 % of the area: the largest stays, the rest are left out."""
+    corners = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    scale = np.linspace(1.0, 1.2, 300)
+    v = np.concatenate([corners * s + [3.0 * i, 0, 0] for i, s in enumerate(scale)])
+    f = np.arange(v.shape[0]).reshape(-1, 3)
+    rep = repair_mesh(v, f, min_component=0.005)
+    np.testing.assert_array_equal(rep.face_origin, [299])
+    assert rep.counts["small_components"] == 299 and rep.counts["small_component_faces"] == 299
+
+
 def test_fins_torn_off_by_the_split_are_small_components():
     """Fins on a closed surface: the split tears each off as a component of its own, so a share above
     theirs leaves exactly the surface's own faces, and none leaves them all."""

@@ -375,12 +375,14 @@ def _kept_faces(v, wf, areas, diag: float, counts: dict) -> np.ndarray:
 
 def _large_components(work: np.ndarray, n_vertices: int, areas: np.ndarray, min_component: float, counts: dict):
     """(F,) bool: the faces of the split mesh (step 6) in components of at least ``min_component`` of
-    the area; the largest component always stays (its share is at least its part).
+    the area, and always those of the largest component (a mesh of many pieces, each under the share, is
+    never emptied).
     """
     if min_component <= 0 or work.shape[0] == 0:
         return np.ones(work.shape[0], bool)
     comp = _component_labels(work, n_vertices)
     share = np.bincount(comp, weights=areas) / areas.sum()
+    share[np.argmax(share)] = 1.0
     small = share[comp] < min_component
     counts["small_components"] = int(np.count_nonzero(share < min_component))
     counts["small_component_faces"] = int(np.count_nonzero(small))
