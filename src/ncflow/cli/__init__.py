@@ -29,7 +29,6 @@ from ncflow.cli import (
     view,
 )
 from ncflow.errors import NcflowError, first_line
-from ncflow.jit.cache import prepare_jax
 
 __all__ = ["COMMANDS", "build_parser", "main"]
 
@@ -79,10 +78,9 @@ def main(argv: list[str] | None = None) -> int:
 
     Every error is one line on stderr: bad options (argparse, status 2), bad input or an unusable
     output path (:class:`~ncflow.errors.NcflowError`, status 2), a failing disk or file system
-    (:class:`OSError`, status 1). The JAX options a match wants from the start are set first
-    (:func:`ncflow.jit.cache.prepare_jax`: nothing has imported JAX yet).
+    (:class:`OSError`, status 1). The JAX options a match wants from the start were set when ``ncflow``
+    was imported, before this module (:func:`ncflow.jit.cache.prepare_jax`).
     """
-    prepare_jax()
     parser = build_parser()
     try:
         args = parser.parse_args(argv)

@@ -16,9 +16,9 @@ where it tunes nothing), so a cluster's nodes or a container image can share one
 
 A cached executable is found by the text of the program it compiles. JAX writes the arrays a
 jitted function closes over (the source, the skeleton, the tissue centroids) into that text by
-default, so every pair had its own programs. :func:`prepare_jax` (before JAX starts) and
-:func:`share_executables` (when a match runs) make them arguments of the program instead (JAX's
-``jax_use_simplified_jaxpr_constants``, with no size limit), and the
+default, so every pair had its own programs. :func:`prepare_jax` (run by ``import ncflow``, before JAX
+starts) makes them arguments of the program instead (JAX's ``jax_use_simplified_jaxpr_constants``, with
+no size limit; :func:`share_executables` tells whether it took effect), and the
 matcher pads the tissue centroids, whose count varies with each tetrahedralisation, to a power of
 two (:func:`bucket`). Pairs whose sources have the same numbers of vertices and edges and whose
 skeletons have the same joint tree (the same character in another pose, two MANO hands) then share
@@ -68,8 +68,8 @@ def prepare_jax() -> bool:
     """Put the JAX options of :data:`SHARE_SETTINGS` in the environment, before JAX is imported, so that
     JAX starts with them: it reads them once, when imported (set later through its configuration, they
     do not take effect: :func:`share_executables`). A user's own settings stay; an already imported JAX
-    is left alone. Called by ``import ncflow`` (the one thing importing ncflow does) and by the
-    ``ncflow`` command. Returns whether it set them.
+    is left alone. Called by ``import ncflow`` (the one thing importing ncflow does), so before any of
+    its modules, the ``ncflow`` command's included. Returns whether it set them.
     """
     import sys
 
@@ -85,8 +85,8 @@ def share_executables() -> bool:
     docstring): closed-over arrays are arguments of the executable. That holds when JAX started with
     the options of :data:`SHARE_SETTINGS` (:func:`prepare_jax`: ncflow imported before JAX, or the
     variables set by the user); JAX started without them ignores them when set later, and every pair
-    then compiles its own programs (the results are the same). Found by lowering a small program that
-    closes over an array. Called when a match runs.
+    then compiles its own programs (the results are the same up to rounding). Found by lowering a small
+    program that closes over an array.
     """
     import jax
     import numpy as np
