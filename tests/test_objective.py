@@ -20,7 +20,7 @@ from ncflow.matcher.prepare import DTYPE, prepare
 from ncflow.matcher.stages import build_stages
 from ncflow.matcher.targets import target_measures
 from ncflow.matcher.train import build_optimizer, init_params, make_step, parameter_labels
-from ncflow.optim.mdmm import ascend_multipliers, multiplier_rate
+from ncflow.optim.mdmm import Multipliers, multiplier_rate, update_multipliers
 from ncflow.skeleton import Skeleton
 from ncflow.skeleton.kinematics import rest_pose
 from ncflow.synthetic.shapes import bend, capsule
@@ -169,17 +169,19 @@ def test_one_step_for_every_metric_picks_the_stage_data_term(problem):
     assert abs(values[0] - values[1]) > 1e-3 * abs(values[0])  # two different terms were picked
 
 
-def test_step_runs_the_sign_ascent_of_optim_mdmm(problem):
+def test_step_runs_the_multiplier_rule_of_optim_mdmm(problem):
     cfg, arrays, st, target, yy, s, params = _first_stage(problem)
     lam = jnp.asarray([[0.3, 0.0], [0.1, 0.2]], DTYPE)
-    cw = jnp.asarray([1.0, 0.0], DTYPE)  # trajectory constraints off in this phase: their λ must not move
+    g_mean, streak = jnp.asarray([[1e-3, 0.0], [2e-4, 0.0]], DTYPE), jnp.asarray([[4.0, 0.0], [7.0, 1.0]], DTYPE)
+    mult = Multipliers(lam, g_mean, streak)
+    cw = jnp.asarray([1.0, 0.0], DTYPE)  # trajectory constraints off in this phase: they must not move
     opt = build_optimizer(cfg)
-    step = make_step(arrays, s, opt, cfg.constraints.multiplier_lr)
-    new, _, state, new_lam, aux = step(
+    step = make_step(arrays, s, opt, cfg.constraints)
+    new, _, state, new_mult, aux = step(
         params,
         rest_pose(arrays.skeleton, DTYPE),
         opt.init(eqx.filter(params, eqx.is_inexact_array)),
-        lam,
+        mult,
         (target,),
         jnp.asarray(0, jnp.int32),
         jnp.asarray(st.sigma, DTYPE),
@@ -191,11 +193,18 @@ def test_step_runs_the_sign_ascent_of_optim_mdmm(problem):
         jax.random.key(3),
     )
     g = jnp.stack([aux["g_ep"], aux["g_tr"]])
-    expected = ascend_multipliers(
-        lam, g, s.aim, multiplier_rate(cfg.constraints.multiplier_lr, 0.5), jnp.asarray([[1.0], [0.0]], DTYPE)
+    c = cfg.constraints
+    expected = update_multipliers(
+        mult,
+        g,
+        s.aim,
+        multiplier_rate(c.multiplier_lr, 0.5),
+        jnp.asarray([[1.0], [0.0]], DTYPE),
+        decay=c.multiplier_average,
     )
-    np.testing.assert_array_equal(np.asarray(new_lam), np.asarray(expected))
-    np.testing.assert_array_equal(np.asarray(new_lam[1]), np.asarray(lam[1]))
+    for got, want, before in zip(new_mult, expected, mult, strict=True):
+        np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
+        np.testing.assert_array_equal(np.asarray(got[1]), np.asarray(before[1]))
     assert float(state.hyperparams["learning_rate"]) == pytest.approx(1e-3)  # the injected rate
 
 

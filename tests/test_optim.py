@@ -9,9 +9,12 @@ import pytest
 from ncflow.optim import (
     adabelief_cautious,
     ascend_multipliers,
+    init_multipliers,
     mdmm_term,
+    multiplier_ceiling,
     multiplier_rate,
     soft_constraint_term,
+    update_multipliers,
     vectoradam_cautious,
     violation,
     warmup_constant,
@@ -345,3 +348,81 @@ def test_mdmm_sign_ascent_reaches_kkt_point_soft_penalty_violates():
     xs = run_soft(jnp.zeros(2))
     assert float(xs[0]) == pytest.approx(2.0 / 1.1, rel=1e-6)  # minimiser of (x₀−2)² + 0.1 x₀²
     assert float(_g(xs)[0]) > 10 * EPS  # violated by a factor > 10
+
+
+def _multiplier_rule_np(lam, g_mean, streak, g, target, rate, active, decay):
+    """The rule of update_multipliers, one constraint at a time, in plain Python floats."""
+    out = []
+    for lk, mk, sk, gk, ak in zip(*(map(float, a) for a in (lam, g_mean, streak, g, active)), strict=True):
+        if ak == 0:
+            out.append((lk, mk, sk))
+            continue
+        mk = decay * mk + (1 - decay) * gk
+        sk = sk + 1 if mk > target else 0.0
+        sign = float(mk > target) - float(mk < target)
+        out.append((max(0.0, lk + rate * ak * sign), mk, sk))
+    return [np.array(c) for c in zip(*out, strict=True)]
+
+
+@pytest.mark.parametrize("decay", [0.9, 0.5, 0.0])
+def test_multiplier_rule_matches_a_plain_python_loop(decay):
+    rng = np.random.default_rng(5)
+    n = 6
+    active = np.array([1.0, 1.0, 1.0, 1.0, 0.0, 1.0])
+    state = init_multipliers(jnp.zeros(n, jnp.float64))
+    lam, g_mean, streak = np.zeros(n), np.zeros(n), np.zeros(n)
+    longest = 0.0
+    for d in range(60):
+        g = rng.exponential(size=n) * np.array([0.1, 0.5, 1.0, 2.0, 3.0, 0.9])
+        rate = 0.05 * d / 60
+        state = update_multipliers(state, jnp.asarray(g), 0.8, rate, jnp.asarray(active), decay=decay)
+        lam, g_mean, streak = _multiplier_rule_np(lam, g_mean, streak, g, 0.8, rate, active, decay)
+        for got, want in zip(state, (lam, g_mean, streak), strict=True):
+            np.testing.assert_allclose(np.asarray(got), want, rtol=1e-12, atol=1e-15)
+        longest = max(longest, streak.max())
+    assert np.all(np.asarray(state.lam)[4] == 0.0) and np.asarray(state.streak)[4] == 0.0  # inactive: frozen
+    assert longest > 5 and np.asarray(state.lam).max() > 0.5  # long streaks and real ascents were exercised
+
+
+def test_an_always_violated_multiplier_ends_at_the_ceiling():
+    """Violated at every step, the ramped sign ascent ends at multiplier_ceiling (its brute-force sum), with
+    or without the running mean (g ≫ target: the mean is above it from the first step)."""
+    n, lr = 400, 1.0
+    plain = jnp.zeros(1, jnp.float64)
+    state = init_multipliers(jnp.zeros(1, jnp.float64))
+    for d in range(n):
+        plain = ascend_multipliers(plain, jnp.ones(1, jnp.float64), 0.0, multiplier_rate(lr, d / n))
+        state = update_multipliers(state, jnp.ones(1, jnp.float64), 1e-3, multiplier_rate(lr, d / n))
+    assert multiplier_ceiling(lr, n) == pytest.approx(sum(2.0 * lr * d / n for d in range(n)), rel=1e-12)
+    assert float(plain[0]) == pytest.approx(multiplier_ceiling(lr, n), rel=1e-5)
+    assert float(state.lam[0]) == pytest.approx(multiplier_ceiling(lr, n), rel=1e-5)
+    assert float(state.streak[0]) == n
+
+
+def _noisy_constraint_run(decay: float, n_steps: int = 20000, seed: int = 0):
+    """Minimise −x subject to E[g] ≤ ε with g estimated each step as x·Z, Z ~ Exp(1) (mean 1, median
+    ln 2: skewed, as a few-sample estimate of a mean squared distance): MDMM descent on x with the
+    multiplier rule at a fixed rate; returns the mean of x over the last half (E[g] = x·1)."""
+    rng = np.random.default_rng(seed)
+    z = jnp.asarray(rng.exponential(size=n_steps))
+
+    def body(c, zk):
+        x, st = c
+        g = x * zk
+        grad = -1.0 + (st.lam + violation(g, EPS)) * zk * (g > EPS)
+        x = x - 1e-4 * grad
+        st = update_multipliers(st, g, EPS, 0.05, decay=decay)
+        return (x, st), x[0]
+
+    init = (jnp.zeros(1, jnp.float64), init_multipliers(jnp.zeros(1, jnp.float64)))
+    _, xs = jax.jit(lambda c: jax.lax.scan(body, c, z))(init)
+    return float(np.mean(np.asarray(xs)[n_steps // 2 :]))
+
+
+def test_the_running_mean_holds_the_mean_of_a_noisy_constraint_the_raw_sign_its_median():
+    """Read on each step's noisy estimate (decay 0) the sign ascent settles where the estimate's median is
+    ε: E[g] = ε / ln 2 ≈ 1.44 ε. Read on the running mean (decay 0.9) it settles near E[g] = ε."""
+    raw = _noisy_constraint_run(0.0) / EPS
+    averaged = _noisy_constraint_run(0.9) / EPS
+    assert raw == pytest.approx(1.0 / np.log(2.0), rel=0.1)
+    assert averaged == pytest.approx(1.0, rel=0.1)

@@ -163,8 +163,9 @@ class ConstraintConfig:
     ``eps`` is the tolerance on the mean squared distance (normalised units: the source encloses
     the volume of the unit ball) between a bone's flowed samples and their rigid reference.
     ``mode`` "mdmm": Lagrangian w·mean_k(λ_k Γ_k + (δ/2)Γ_k²), Γ_k = max(g_k − ε, 0), with
-    multipliers λ ≥ 0 updated every step by λ ← max(0, λ ± η_t) (up while violated, down once
-    satisfied; η_t ramps from 0 to 2·``multiplier_lr`` over the run) and damping δ = ``damping``;
+    multipliers λ ≥ 0 updated every step by λ ← max(0, λ ± η_t) (up while the running mean of g, decay
+    ``multiplier_average``, is above the aim, down once below; η_t ramps from 0 to 2·``multiplier_lr``
+    over the run; :func:`ncflow.optim.mdmm.update_multipliers`) and damping δ = ``damping``;
     "soft": a fixed penalty ``soft_weight`` · mean_k g_k/ε (the ARC-Flow baseline).
     ``trajectory_weight`` scales the interior-time constraints.
     ``margin`` (0 < margin ≤ 1): the MDMM terms aim at g_k ≤ margin·ε. MDMM settles each active
@@ -178,6 +179,7 @@ class ConstraintConfig:
     margin: float = setting(0.7, above=0, hi=1, message="{name} must be in (0, 1]")
     damping: float = setting(1.0, lo=0, message=NON_NEGATIVE)
     multiplier_lr: float = setting(1.0, lo=0, message=NON_NEGATIVE)
+    multiplier_average: float = setting(0.9, lo=0, below=1, message="{name} must be in [0, 1)")
     weight: float = setting(1.0, lo=0, message=NON_NEGATIVE)
     soft_weight: float = setting(1.0, lo=0, message=NON_NEGATIVE)
     trajectory_weight: float = setting(1.0, lo=0, message=NON_NEGATIVE)

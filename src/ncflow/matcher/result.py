@@ -35,7 +35,7 @@ from ncflow.matcher.placement import Placement
 from ncflow.matcher.prepare import DTYPE, Setup
 from ncflow.matcher.programs import Programs, output_flow_inputs, output_frame_times
 from ncflow.matcher.train import Trained, TrainingError, TrainState
-from ncflow.optim.mdmm import multiplier_ceiling
+from ncflow.optim.mdmm import Multipliers
 from ncflow.skeleton import Skeleton
 from ncflow.skeleton.kinematics import Pose
 
@@ -216,7 +216,8 @@ def build_result(
     )
 
 
-def _bone_rows(skeleton: Skeleton, g_ep, g_tr, lam, eps: float, scale: float) -> list[dict]:
+def _bone_rows(skeleton: Skeleton, g_ep, g_tr, mult: Multipliers, eps: float, aim: float, scale: float) -> list[dict]:
+    lam, g_mean = np.asarray(mult.lam), np.asarray(mult.g_mean)
     names = skeleton.names or tuple(f"joint {j}" for j in range(skeleton.n_joints))
     return [
         {
@@ -227,34 +228,42 @@ def _bone_rows(skeleton: Skeleton, g_ep, g_tr, lam, eps: float, scale: float) ->
             "satisfied": bool(g_ep[j - 1] <= eps and g_tr[j - 1] <= eps),
             "multiplier_endpoint": float(lam[0, j - 1]),
             "multiplier_trajectory": float(lam[1, j - 1]),
+            "held_in_training": bool(g_mean[0, j - 1] <= aim and g_mean[1, j - 1] <= aim),
         }
         for j in range(1, skeleton.n_joints)
     ]
 
 
-def bones_beyond_tolerance(rows: list[dict], eps: float, ceiling: float) -> tuple[list[dict], str | None]:
+def bones_beyond_tolerance(rows: list[dict], eps: float) -> tuple[list[dict], str | None]:
     """The bones that end beyond ε (from :func:`_bone_rows`, largest violation first) and the warning
-    that names them with g/ε and says which of two causes the run shows: multipliers at ``ceiling``
-    (within 10 % of :func:`~ncflow.optim.mdmm.multiplier_ceiling`: the data term out-pulled the constraint for the
-    whole run, as when the skeleton cannot reach the target) or below it (held in training, beyond ε on
-    the final fresh samples). None when every bone holds.
+    that names them with g/ε and says which of two causes the run shows: still violated in training at
+    the end (the running mean of g above the aim, its multipliers still growing: the data term out-pulls
+    the constraint, as when the skeleton cannot reach the target) or held there (beyond ε only on the
+    final fresh samples). None when every bone holds.
     """
     beyond = []
     for r in rows:
         ratio = max(r["g_endpoint"], r["g_trajectory"]) / eps
         if ratio > 1.0:
-            at_ceiling = max(r["multiplier_endpoint"], r["multiplier_trajectory"]) >= 0.9 * ceiling > 0
-            beyond.append({"bone": r["bone"], "violation_ratio": ratio, "multiplier_at_ceiling": bool(at_ceiling)})
+            beyond.append(
+                {
+                    "bone": r["bone"],
+                    "violation_ratio": ratio,
+                    "held_in_training": r["held_in_training"],
+                    "multiplier": max(r["multiplier_endpoint"], r["multiplier_trajectory"]),
+                }
+            )
     beyond.sort(key=lambda b: -b["violation_ratio"])
     if not beyond:
         return beyond, None
     named = ", ".join(f"{b['bone']} ({b['violation_ratio']:.2g} ε)" for b in beyond[:5])
     more = f" and {len(beyond) - 5} more" if len(beyond) > 5 else ""
-    pulled = sum(b["multiplier_at_ceiling"] for b in beyond)
+    pulled = [b for b in beyond if not b["held_in_training"]]
     if pulled:
+        top = max(b["multiplier"] for b in pulled)
         cause = (
-            f"{pulled} of them with multipliers at the most the schedule reaches ({ceiling:.0f}): the target "
-            "pulls them off rigid for the whole run; the skeleton may not reach it (a bone of another length, "
+            f"{len(pulled)} of them still violated at the end of training, multipliers rising (up to {top:.3g}): "
+            "the target pulls them off rigid; the skeleton may not reach it (a bone of another length, "
             "a joint the skeleton lacks, a limb the target misses)"
         )
     else:
@@ -274,9 +283,9 @@ def _metrics(setup, placed, trained, programs, targets, cfg, g_ep, g_tr, maps, t
         timings["compile_ahead_wait"] = timings.get("compile_ahead_wait", 0.0) + waited
     timings["total"] = sum(v for k, v in timings.items() if k in ("setup", "train", "outputs"))
     search = placed.pose_search
-    bones = _bone_rows(skeleton, g_ep, g_tr, trained.state.lam, eps, norm.scale)
-    ceiling = multiplier_ceiling(cfg.constraints.multiplier_lr, cfg.total_steps)
-    beyond, warning = bones_beyond_tolerance(bones, eps, ceiling)
+    aim = cfg.constraints.margin * eps
+    bones = _bone_rows(skeleton, g_ep, g_tr, trained.state.multipliers, eps, aim, norm.scale)
+    beyond, warning = bones_beyond_tolerance(bones, eps)
     return {
         "ncflow_version": __version__,
         "seed": cfg.seed,

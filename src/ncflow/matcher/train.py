@@ -4,7 +4,7 @@ The optimiser is the configured Adam-family transform (cautious AdaBelief or Vec
 global-norm clip, with the learning rate injected per step (:func:`optax.inject_hyperparams`; the
 schedule and the divergence guard's scale are applied to it) and the skeleton pose's learning rate
 scaled by ``flow.pose_lr_scale`` through :func:`optax.multi_transform`. Multipliers follow the
-ramped sign ascent of :func:`ncflow.optim.mdmm.ascend_multipliers`. A
+ramped sign ascent on the running mean of g of :func:`ncflow.optim.mdmm.update_multipliers`. A
 :class:`~ncflow.matcher.guard.DivergenceGuard` rolls a stage back to its last healthy snapshot, at
 half the learning rate, when the data term or the largest bone violation runs away.
 """
@@ -30,7 +30,7 @@ from ncflow.matcher.prepare import DTYPE, skinning_width
 from ncflow.matcher.progress import Progress
 from ncflow.matcher.stages import Stage, phase_schedule
 from ncflow.optim import adabelief_cautious, vectoradam_cautious
-from ncflow.optim.mdmm import ascend_multipliers, multiplier_rate
+from ncflow.optim.mdmm import Multipliers, init_multipliers, multiplier_rate, update_multipliers
 from ncflow.skeleton import Skeleton
 from ncflow.skeleton.kinematics import Pose, rest_pose
 
@@ -93,29 +93,33 @@ def build_optimizer(config) -> optax.GradientTransformation:
     return optax.inject_hyperparams(factory, hyperparam_dtype=DTYPE)(learning_rate=1.0)
 
 
-def make_step(arrays: Arrays, settings: Settings, optimizer: optax.GradientTransformation, multiplier_lr: float):
+def make_step(arrays: Arrays, settings: Settings, optimizer: optax.GradientTransformation, constraints):
     """The jitted training step, one for every stage (the stage's metric is the traced ``which``).
 
-    ``step(params, pose, opt_state, lam, targets, which, sigma, sigma_n, yy, cw, lr, progress, key)`` →
-    ``(params, pose, opt_state, lam, aux)``: value and gradient of :func:`~ncflow.matcher.objective.objective`,
-    one optimiser update at learning rate ``lr``, and (MDMM) one multiplier ascent at the rate
-    ramped by ``progress`` (step / total steps).
+    ``step(params, pose, opt_state, mult, targets, which, sigma, sigma_n, yy, cw, lr, progress, key)`` →
+    ``(params, pose, opt_state, mult, aux)``: value and gradient of :func:`~ncflow.matcher.objective.objective`,
+    one optimiser update at learning rate ``lr``, and (MDMM) one step of the multiplier rule
+    (:func:`~ncflow.optim.mdmm.update_multipliers` with ``constraints``' rate and average; ``mult`` a
+    :class:`~ncflow.optim.mdmm.Multipliers` of (2, B) arrays) at the rate ramped by ``progress`` (step / total
+    steps).
     """
+    c = constraints
     loss = functools.partial(objective, arrays=arrays, settings=settings)
 
     @eqx.filter_jit
-    def step(params, pose, opt_state, lam, targets, which, sigma, sigma_n, yy, cw, lr, progress, key):
+    def step(params, pose, opt_state, mult, targets, which, sigma, sigma_n, yy, cw, lr, progress, key):
         (_, aux), grads = eqx.filter_value_and_grad(loss, has_aux=True)(
-            params, pose, targets, which, sigma, sigma_n, yy, cw, lam, key
+            params, pose, targets, which, sigma, sigma_n, yy, cw, mult.lam, key
         )
         opt_state = opt_state._replace(hyperparams={**opt_state.hyperparams, "learning_rate": lr})
         updates, opt_state = optimizer.update(grads, opt_state, eqx.filter(params, eqx.is_inexact_array))
         params = eqx.apply_updates(params, updates)
         if settings.mode == "mdmm":
             g = jnp.stack([aux["g_ep"], aux["g_tr"]])
-            active = (cw > 0).astype(lam.dtype)[:, None]
-            lam = ascend_multipliers(lam, g, settings.aim, multiplier_rate(multiplier_lr, progress), active)
-        return params, aux.pop("pose"), opt_state, lam, aux
+            active = (cw > 0).astype(mult.lam.dtype)[:, None]
+            rate = multiplier_rate(c.multiplier_lr, progress)
+            mult = update_multipliers(mult, g, settings.aim, rate, active, decay=c.multiplier_average)
+        return params, aux.pop("pose"), opt_state, mult, aux
 
     return step
 
@@ -146,20 +150,25 @@ def training_programs(
     optimizer = build_optimizer(cfg)
     metrics = tuple(dict.fromkeys(st.metric for st in stages))
     settings = Settings.from_config(cfg, metrics, arrays.n_edges, n_centroids)
-    step = make_step(arrays, settings, optimizer, cfg.constraints.multiplier_lr)
+    step = make_step(arrays, settings, optimizer, cfg.constraints)
     return TrainingPrograms(jit_run_once(initial_params), optimizer, settings, step)
 
 
 @dataclasses.dataclass(frozen=True)
 class TrainState:
     """What the training carries from step to step and hands on: the networks (the field's pose
-    included), the pose of the per-step fit and the multipliers (2, B); a later match may start from it
-    (:func:`train`'s ``start``).
+    included), the pose of the per-step fit and the multiplier rule's state (:class:`~ncflow.optim.mdmm.Multipliers`
+    of (2, B) arrays: endpoint, trajectory); a later match may start from it (:func:`train`'s ``start``).
     """
 
     params: Params
     pose: Pose
-    lam: jax.Array
+    multipliers: Multipliers
+
+    @property
+    def lam(self) -> jax.Array:
+        """(2, B) the multipliers λ (endpoint, trajectory)."""
+        return self.multipliers.lam
 
 
 @dataclasses.dataclass(frozen=True)
@@ -184,18 +193,18 @@ class Trained:
 def initial_state(
     programs: TrainingPrograms, skeleton: Skeleton, key, initial_pose: Pose | None, start: TrainState | None = None
 ):
-    """(params, pose, optimiser state, multipliers) at the start of training: fresh networks at
+    """(params, pose, optimiser state, multiplier state) at the start of training: fresh networks at
     ``initial_pose`` (default the rest pose), or the state of an earlier training (``start``) with a
     fresh optimiser state.
     """
     if start is not None:
-        params, pose, lam = start.params, start.pose, start.lam
+        params, pose, mult = start.params, start.pose, start.multipliers
     else:
         params = programs.init(key, initial_pose)
         pose = rest_pose(skeleton, DTYPE) if initial_pose is None else initial_pose
-        lam = jnp.zeros((2, skeleton.n_bones), DTYPE)
+        mult = init_multipliers(jnp.zeros((2, skeleton.n_bones), DTYPE))
     opt_state = programs.optimizer.init(eqx.filter(params, eqx.is_inexact_array))
-    return params, pose, opt_state, lam
+    return params, pose, opt_state, mult
 
 
 def stage_inputs(stage: Stage, metrics: tuple[str, ...], targets: dict, placeholders: dict) -> tuple:
@@ -222,11 +231,11 @@ def compile_step(programs: TrainingPrograms, skeleton: Skeleton, stages: list[St
     arguments :func:`train` passes, so its first call finds the executable.
     """
     k_init, k_train = key
-    params, pose, opt_state, lam = initial_state(programs, skeleton, k_init, pose)
+    params, pose, opt_state, mult = initial_state(programs, skeleton, k_init, pose)
     metrics = programs.settings.metrics
     inputs = stage_inputs(stages[0], metrics, targets, stage_placeholders(stages, targets))
     scalars = (jnp.asarray(1.0, DTYPE), jnp.asarray(0.0, DTYPE), jax.random.fold_in(k_train, 0))
-    programs.step.lower(params, pose, opt_state, lam, *inputs, *scalars).compile()
+    programs.step.lower(params, pose, opt_state, mult, *inputs, *scalars).compile()
 
 
 def train(
@@ -251,7 +260,7 @@ def train(
     """
     cfg = config
     k_init, k_train = key
-    params, pose, opt_state, lam = initial_state(programs, skeleton, k_init, initial_pose, start)
+    params, pose, opt_state, mult = initial_state(programs, skeleton, k_init, initial_pose, start)
     metrics = programs.settings.metrics
     step = programs.step
     placeholders = stage_placeholders(stages, targets)
@@ -264,14 +273,14 @@ def train(
         stage_targets, which, sigma, sigma_n, yy, cw = stage_inputs(st, metrics, targets, placeholders)
         schedule = phase_schedule(st.phase_config)
         phase_name = st.phase_config.name or st.metric
-        guard.start_stage((params, pose, opt_state, lam), watch_violation=done > 0)
+        guard.start_stage((params, pose, opt_state, mult), watch_violation=done > 0)
         for s in range(st.steps):
             lr = jnp.asarray(schedule(st.start + s) * guard.lr_scale, DTYPE)
-            params, pose, opt_state, lam, aux = step(
+            params, pose, opt_state, mult, aux = step(
                 params,
                 pose,
                 opt_state,
-                lam,
+                mult,
                 stage_targets,
                 which,
                 sigma,
@@ -284,9 +293,9 @@ def train(
             )
             done += 1
             watch = np.asarray(aux["watch"], np.float64)  # one transfer: data term, largest g/ε
-            verdict = guard.observe(float(watch[0]), (params, pose, opt_state, lam), done, float(watch[1]))
+            verdict = guard.observe(float(watch[0]), (params, pose, opt_state, mult), done, float(watch[1]))
             if verdict != "ok":
-                params, pose, opt_state, lam = guard.snapshot
+                params, pose, opt_state, mult = guard.snapshot
                 ev = guard.events[-1]
                 progress.message(
                     f"[{phase_name} σ={st.sigma:g}] step {done}: the run went astray (data {ev['data_smoothed']:.3g}, "
@@ -305,7 +314,7 @@ def train(
                         "try a smaller learning rate (e.g. phases.lr) or check the inputs"
                     )
                 progress.update(done, f"{phase_name} σ={st.sigma:g}", loss, float(watch[1]))
-        guard.end_stage((params, pose, opt_state, lam), f"{phase_name} σ={st.sigma:g}")
+        guard.end_stage((params, pose, opt_state, mult), f"{phase_name} σ={st.sigma:g}")
         history.append(
             {
                 "phase": phase_name,
@@ -315,7 +324,7 @@ def train(
                 **{k: float(aux[k]) for k in ("loss", "data", "surface", "tissue", "constraint")},
             }
         )
-    params, pose, opt_state, lam = guard.finish((params, pose, opt_state, lam), done)
+    params, pose, opt_state, mult = guard.finish((params, pose, opt_state, mult), done)
     if guard.events and "restored_stage_end" in guard.events[-1]:
         ev = guard.events[-1]
         progress.message(
@@ -326,4 +335,4 @@ def train(
     leaves = jax.tree_util.tree_leaves(eqx.filter(params, eqx.is_inexact_array))
     if not all(np.all(np.isfinite(np.asarray(leaf))) for leaf in leaves):  # on the host: no program per leaf shape
         raise TrainingError("training produced non-finite parameters")
-    return Trained(TrainState(params, pose, lam), cw, tuple(history), done, tuple(guard.events))
+    return Trained(TrainState(params, pose, mult), cw, tuple(history), done, tuple(guard.events))

@@ -3,11 +3,14 @@
 """
 
 from ncflow.optim.mdmm import (
+    Multipliers,
     ascend_multipliers,
+    init_multipliers,
     mdmm_term,
     multiplier_ceiling,
     multiplier_rate,
     soft_constraint_term,
+    update_multipliers,
     violation,
 )
 from ncflow.optim.optimizers import (
@@ -20,6 +23,9 @@ from ncflow.optim.optimizers import (
 from ncflow.optim.schedules import warmup_constant, warmup_cosine
 
 __all__ = [
+    "Multipliers",
+    "init_multipliers",
+    "update_multipliers",
     "adabelief_cautious",
     "ascend_multipliers",
     "multiplier_ceiling",

@@ -15,6 +15,8 @@ baseline: a fixed-weight penalty, :func:`soft_constraint_term`.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
@@ -59,8 +61,8 @@ def ascend_multipliers(
     lam: Float[Array, "*batch B"],
     g: Float[Array, "*batch B"],
     target: float | Float[Array, "*batch B"],
-    rate: float | Float[Array, ""],
-    active: float | Float[Array, "*batch 1"] = 1.0,
+    rate: float | Float[ArrayLike, ""],
+    active: float | Float[ArrayLike, ""] | Float[ArrayLike, "*#batch #B"] = 1.0,
 ) -> Float[Array, "*batch B"]:
     """The multiplier rule the matcher runs: λ ← max(0, λ + η_t · a · sign(g − target)).
 
@@ -89,9 +91,61 @@ def soft_constraint_term(
 
 
 def multiplier_ceiling(lr: float, n_steps: int) -> float:
-    """The largest multiplier :func:`ascend_multipliers` reaches in a run of ``n_steps`` steps at the
+    """The largest multiplier :func:`ascend_multipliers` alone reaches in a run of ``n_steps`` steps at the
     ramped rate of :func:`multiplier_rate` (step d at progress d / n_steps), rising every step:
-    Σ_d 2η d / n = η (n − 1). A constraint still violated with its multiplier there is one the data term
-    out-pulls for the whole run.
+    Σ_d 2η d / n = η (n − 1). A constraint the data term out-pulls for the whole run ends there (399 at
+    the defaults: the Fox's root bone at 5.6 ε, benchmarks/RESULTS.md "Bones hold").
     """
     return float(lr) * max(int(n_steps) - 1, 0)
+
+
+class Multipliers(NamedTuple):
+    """What the multiplier rule carries from step to step (each (…, B), one entry per constraint).
+
+    Attributes:
+        lam: the multipliers λ ≥ 0.
+        g_mean: the running mean of g that the rule reads (an exponential moving average).
+        streak: steps in a row that ``g_mean`` has been above the target (a float count; the matcher
+            reports a bone still violated at the end of training from it).
+    """
+
+    lam: Float[Array, "*batch B"]
+    g_mean: Float[Array, "*batch B"]
+    streak: Float[Array, "*batch B"]
+
+
+def init_multipliers(lam: Float[ArrayLike, "*batch B"]) -> Multipliers:
+    """The rule's state at the start: multipliers ``lam``, no running mean (0) and no streak."""
+    lam = jnp.asarray(lam)
+    return Multipliers(lam, jnp.zeros_like(lam), jnp.zeros_like(lam))
+
+
+def update_multipliers(
+    state: Multipliers,
+    g: Float[Array, "*batch B"],
+    target: float | Float[Array, "*batch B"],
+    rate: float | Float[ArrayLike, ""],
+    active: float | Float[ArrayLike, ""] | Float[ArrayLike, "*#batch #B"] = 1.0,
+    *,
+    decay: float = 0.9,
+) -> Multipliers:
+    """One step of the multiplier rule the matcher runs: the sign ascent of :func:`ascend_multipliers`
+    read on the running mean of g,
+
+        ḡ ← β ḡ + (1 − β) g,        λ ← max(0, λ + η_t · a · sign(ḡ − target)),
+
+    and the streak s ← (s + 1) · [ḡ > target] of steps it has stayed above the target.
+
+    Why the mean (benchmarks/RESULTS.md, "Bones hold"): g is estimated each step from a few fresh bone
+    samples (``sampling.bone_samples``), a noisy and skewed estimate, and the sign ascent on it holds its
+    *median* at the target, while its mean — what the final 200 fresh samples per bone measure — lies
+    above (for an exponential spread, 1/ln 2 ≈ 1.44× the median). The running mean (β = ``decay``, about
+    1/(1 − β) steps; 0: the step's own estimate) is an estimate of the mean that the sign can hold.
+    ``active`` (0 or 1) freezes every part of the constraints switched off in a phase. ḡ starts at 0
+    (:func:`init_multipliers`), below any target, while the ramp η_t is still near 0.
+    """
+    keep = jnp.asarray(active) > 0
+    g_mean = jnp.where(keep, decay * state.g_mean + (1.0 - decay) * g, state.g_mean)
+    streak = jnp.where(keep, jnp.where(g_mean > target, state.streak + 1.0, 0.0), state.streak)
+    lam = ascend_multipliers(state.lam, g_mean, target, rate, active)
+    return Multipliers(lam, g_mean, streak)
