@@ -172,8 +172,7 @@ def test_one_step_for_every_metric_picks_the_stage_data_term(problem):
 def test_step_runs_the_multiplier_rule_of_optim_mdmm(problem):
     cfg, arrays, st, target, yy, s, params = _first_stage(problem)
     lam = jnp.asarray([[0.3, 0.0], [0.1, 0.2]], DTYPE)
-    g_mean, streak = jnp.asarray([[1e-3, 0.0], [2e-4, 0.0]], DTYPE), jnp.asarray([[4.0, 0.0], [7.0, 1.0]], DTYPE)
-    mult = Multipliers(lam, g_mean, streak)
+    mult = Multipliers(lam, jnp.asarray([[1e-3, 0.0], [2e-4, 0.0]], DTYPE))
     cw = jnp.asarray([1.0, 0.0], DTYPE)  # trajectory constraints off in this phase: they must not move
     opt = build_optimizer(cfg)
     step = make_step(arrays, s, opt, cfg.constraints)

@@ -104,20 +104,18 @@ class Multipliers(NamedTuple):
 
     Attributes:
         lam: the multipliers λ ≥ 0.
-        g_mean: the running mean of g that the rule reads (an exponential moving average).
-        streak: steps in a row that ``g_mean`` has been above the target (a float count; the matcher
-            reports a bone still violated at the end of training from it).
+        g_mean: the running mean of g that the rule reads (an exponential moving average); above the
+            target at the end of training, its constraint was still violated there.
     """
 
     lam: Float[Array, "*batch B"]
     g_mean: Float[Array, "*batch B"]
-    streak: Float[Array, "*batch B"]
 
 
 def init_multipliers(lam: Float[ArrayLike, "*batch B"]) -> Multipliers:
-    """The rule's state at the start: multipliers ``lam``, no running mean (0) and no streak."""
+    """The rule's state at the start: multipliers ``lam`` and no running mean (0)."""
     lam = jnp.asarray(lam)
-    return Multipliers(lam, jnp.zeros_like(lam), jnp.zeros_like(lam))
+    return Multipliers(lam, jnp.zeros_like(lam))
 
 
 def update_multipliers(
@@ -132,9 +130,7 @@ def update_multipliers(
     """One step of the multiplier rule the matcher runs: the sign ascent of :func:`ascend_multipliers`
     read on the running mean of g,
 
-        ḡ ← β ḡ + (1 − β) g,        λ ← max(0, λ + η_t · a · sign(ḡ − target)),
-
-    and the streak s ← (s + 1) · [ḡ > target] of steps it has stayed above the target.
+        ḡ ← β ḡ + (1 − β) g,        λ ← max(0, λ + η_t · a · sign(ḡ − target)).
 
     Why the mean (benchmarks/RESULTS.md, "Bones hold"): g is estimated each step from a few fresh bone
     samples (``sampling.bone_samples``), a noisy and skewed estimate, and the sign ascent on it holds its
@@ -146,6 +142,5 @@ def update_multipliers(
     """
     keep = jnp.asarray(active) > 0
     g_mean = jnp.where(keep, decay * state.g_mean + (1.0 - decay) * g, state.g_mean)
-    streak = jnp.where(keep, jnp.where(g_mean > target, state.streak + 1.0, 0.0), state.streak)
     lam = ascend_multipliers(state.lam, g_mean, target, rate, active)
-    return Multipliers(lam, g_mean, streak)
+    return Multipliers(lam, g_mean)
