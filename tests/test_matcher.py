@@ -382,7 +382,7 @@ def test_output_motion_is_the_flow_of_the_source_and_of_fresh_bone_samples(pair,
     points = 0.3 * src.vertices[:101]  # any points: the field is defined everywhere (an odd count: padded)
     times = np.array([0.0, 0.3, 0.5, 1.0])
     key = jax.random.key(3)
-    program = output_flow_program(skel, None, r.n_times)
+    program = output_flow_program(skel, None, (0.1, 0.9), r.n_times)
     frames, bones, states = output_motion(r.field, points, times, r.n_times, skel, None, key, program)
     expected = sample_bones(skel, key, FINAL_BONE_SAMPLES, dtype=np.float32).points
     np.testing.assert_allclose(np.asarray(bones), np.asarray(expected), atol=1e-6)  # compiled apart: rounding

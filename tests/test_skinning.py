@@ -9,7 +9,8 @@ import pytest
 from ncflow.config import apply_overrides, preset
 from ncflow.errors import InputError
 from ncflow.flow import SkinnedField, bone_velocities, flow_points, make_flow_field, skinning_weights, time_grid
-from ncflow.skeleton import Skeleton, rigid_reference
+from ncflow.flow.skinning import core_gate
+from ncflow.skeleton import Skeleton, rigid_reference, sample_bones
 from ncflow.skeleton.dualquat import quat_from_rotvec
 from ncflow.skeleton.kinematics import Pose, bone_motions, move_bone_points, rest_pose
 
@@ -279,3 +280,79 @@ def test_the_compiled_field_does_not_depend_on_the_skeleton_positions_or_the_wid
     first = program(POSITIONS, 0.05)
     assert program(moved, 0.08) == first
     assert program(POSITIONS, 0.05, np.array([-1, 0, 1, 2, 0])) != first
+
+
+def test_core_gate_against_dense_segment_sampling():
+    skel = _skeleton()
+    heads = jnp.asarray(POSITIONS[skel.bones[:, 0]])
+    tails = jnp.asarray(POSITIONS[skel.bones[:, 1]])
+    radius = jnp.asarray([0.1, 0.15, 0.08, 0.12])
+    x = jnp.asarray(np.random.default_rng(7).uniform(-0.3, 1.3, size=(400, 3)) * [1, 1, 2])
+    gate = np.asarray(core_gate(x, heads, tails, radius, 2.5 * radius))
+    # brute force: the core segment is the 10 %–90 % part of each bone
+    s = np.linspace(0.1, 0.9, 40001)
+    pts = np.asarray(heads)[:, None, :] + s[None, :, None] * np.asarray(tails - heads)[:, None, :]
+    d = np.min(np.linalg.norm(np.asarray(x)[:, None, None, :] - pts[None], axis=-1), axis=-1)  # (N, B)
+    q = np.min(d / np.asarray(radius), axis=1)
+    u = np.clip((q - 1.0) / 1.5, 0.0, 1.0)
+    np.testing.assert_allclose(gate, u * u * (3 - 2 * u), atol=1e-6)
+    assert np.any(gate == 0.0) and np.any(gate == 1.0) and np.any((gate > 0.05) & (gate < 0.95))
+
+
+def test_a_rigid_core_moves_the_bone_samples_with_the_skeleton_alone():
+    """Inside the cores the Flow-Net is switched off: bone samples flow exactly as with no Flow-Net at
+    all (both weight modes), while points beyond (1 + ramp) core radii get the whole Flow-Net. With wider
+    bone weights the blend near a joint carries a few samples just past their core, where the Flow-Net
+    fades back in: a leak of under 1 % of its motion.
+    """
+    skel, pose = _skeleton(), _pose(_skeleton())
+    rho = 0.1
+    core = rho * skel.bone_lengths
+    samples = sample_bones(skel, jax.random.key(3), 12, radius=rho, dtype=jnp.float64).flat()
+    flow = eqx.filter_jit(lambda f, p: flow_points(f, p, 10))
+    for mode in ("current", "start"):
+        for width, leak in ((0.02, 1e-12), (0.05, 1e-3)):
+            gated = SkinnedField(
+                _residual(alpha=0.3), skel, pose, width, dtype=jnp.float64, weight_mode=mode, core=core
+            )
+            bare = eqx.tree_at(lambda f: f.residual.alpha, gated, jnp.zeros((), jnp.float64))
+            free = SkinnedField(_residual(alpha=0.3), skel, pose, width, dtype=jnp.float64, weight_mode=mode)
+            without = flow(bare, samples)
+            np.testing.assert_allclose(np.asarray(flow(gated, samples)), np.asarray(without), rtol=0, atol=leak)
+            assert float(jnp.max(jnp.abs(flow(free, samples) - without))) > 0.1  # the Flow-Net does move them
+    far = jnp.asarray([[0.0, 0.6, 0.5], [0.6, 0.6, 2.0], [-0.7, 0.0, 1.5]])  # ≥ 0.5 from every core segment
+    gated = SkinnedField(_residual(alpha=0.3), skel, pose, 0.05, dtype=jnp.float64, core=core)
+    free = SkinnedField(_residual(alpha=0.3), skel, pose, 0.05, dtype=jnp.float64)
+    np.testing.assert_allclose(np.asarray(gated(far, 0.0)), np.asarray(free(far, 0.0)), atol=1e-14)
+    with pytest.raises(ValueError, match="4 radii"):
+        SkinnedField(_residual(), skel, core=core[:3])
+
+
+def test_rigid_core_setting():
+    from ncflow.matcher.objective import bone_cores
+    from ncflow.matcher.train import init_params
+
+    cfg = preset("fast")
+    assert cfg.flow.rigid_core == 1.0
+    with pytest.raises(InputError, match="rigid_core"):
+        apply_overrides(cfg, ["flow.rigid_core=-1"])
+    skel = _skeleton()
+    core, outer = bone_cores(skel, 0.1, 1.0)
+    np.testing.assert_allclose(core, 0.1 * skel.bone_lengths)
+    np.testing.assert_allclose(outer, 0.2 * skel.bone_lengths)
+    # a bone nowhere inside has no core
+    core, outer = bone_cores(skel, 0.1, 1.0, inside=np.array([1.0, 0.0, 0.3, 1.0]))
+    np.testing.assert_allclose(core, [0.1, 0.0, 0.08, 0.1])
+    np.testing.assert_allclose(outer, [0.2, 0.0, 0.16, 0.2])
+    # a thin limb's samples (and so its core) are narrowed to end the ramp at its flesh
+    from ncflow.matcher.prepare import bone_radii
+
+    flesh = np.array([1.0, 1.0, 1.0, 0.1])
+    np.testing.assert_allclose(bone_radii(cfg, skel, flesh), [0.1, 0.1, 0.1, 0.05])
+    off = apply_overrides(cfg, ["flow.rigid_core=0"])
+    np.testing.assert_allclose(bone_radii(off, skel, flesh), 0.1)
+    params = init_params(jax.random.key(0), cfg, skel)
+    expected = np.column_stack([0.1 * skel.bone_lengths, 0.2 * skel.bone_lengths, np.full(4, 0.1), np.full(4, 0.9)])
+    np.testing.assert_allclose(np.asarray(params.flow.core), expected, rtol=1e-6)
+    off = init_params(jax.random.key(0), apply_overrides(cfg, ["flow.rigid_core=0"]), skel)
+    assert off.flow.core is None

@@ -101,7 +101,11 @@ class FlowConfig:
     (``"start"`` when the target passes through itself over more of its area than the source does,
     :func:`ncflow.matcher.prepare.skinning_weight_mode`);
     ``pose_lr_scale`` multiplies the learning rate of that pose (its quaternions take sign-like
-    steps of about lr each, too slow for a 100° joint in a few hundred steps at the flow's rate).
+    steps of about lr each, too slow for a 100° joint in a few hundred steps at the flow's rate);
+    ``rigid_core`` (with ``skinning``; 0: off) fades the Flow-Net out around every bone, so that the
+    bone samples (within ``sampling.bone_radius`` of the bone's axis) move with the skeleton alone and
+    the bones stay rigid by construction: the Flow-Net's velocity is scaled by a smoothstep from 0 at
+    the samples' radius to 1 at (1 + ``rigid_core``) radii (:func:`ncflow.flow.skinning.core_gate`).
     """
 
     width: int = setting(64, lo=1, hi=1 << 16, message=AT_LEAST_1)
@@ -113,6 +117,7 @@ class FlowConfig:
         "auto", choices=("auto", "current", "start"), message="{name} must be 'auto', 'current' or 'start'"
     )
     pose_lr_scale: float = setting(5.0, lo=0, message=NON_NEGATIVE)
+    rigid_core: float = setting(1.0, lo=0, message=NON_NEGATIVE)
     n_times: int = setting(10, lo=2, hi=100_000, message="{name} must be at least 2")
     gso_width: int = setting(32, lo=1, hi=1 << 16)
     gso_depth: int = setting(2, lo=0, hi=1024)
@@ -172,6 +177,9 @@ class ConstraintConfig:
     constraint *at* its target, fluctuating around it with the per-step sampling; aiming a
     margin below ε keeps the final values (estimated on fresh samples) under ε. The ``paper``
     preset aims at ε itself (margin 1), as the release.
+    ``reach_stretch`` (> 1): a bone whose skin the match stretched along it by more than this factor, or
+    squeezed below its inverse, is named in a warning and ``constraints.out_of_reach`` (the skeleton did
+    not reach the target there; :func:`ncflow.skeleton.reach.skin_stretch`).
     """
 
     mode: str = setting("mdmm", choices=("mdmm", "soft"), message="{name} must be 'mdmm' or 'soft'")
@@ -183,6 +191,7 @@ class ConstraintConfig:
     weight: float = setting(1.0, lo=0, message=NON_NEGATIVE)
     soft_weight: float = setting(1.0, lo=0, message=NON_NEGATIVE)
     trajectory_weight: float = setting(1.0, lo=0, message=NON_NEGATIVE)
+    reach_stretch: float = setting(2.0, above=1, message="{name} must be above 1")
 
 
 @dataclass(frozen=True)

@@ -53,6 +53,7 @@ from ncflow.flow.integrate import time_grid
 from ncflow.skeleton import Skeleton
 from ncflow.skeleton.dualquat import dq_rotation, dq_translation, quat_to_matrix
 from ncflow.skeleton.kinematics import Pose, bone_motions, rest_pose
+from ncflow.skeleton.samples import DEFAULT_AXIAL_RANGE
 
 _HIGHEST = jax.lax.Precision.HIGHEST  # full float32 products on GPUs too (not TF32): see measures/kernels.py
 
@@ -110,6 +111,31 @@ def skinning_weights(
     return jax.nn.softmax(-_segment_distance(x, heads, tails) / width, axis=-1)
 
 
+def core_gate(
+    x: Float[Array, "N 3"],
+    heads: Float[Array, "B 3"],
+    tails: Float[Array, "B 3"],
+    radius: Float[ArrayLike, " B"],
+    outer: Float[ArrayLike, " B"],
+    axial_range: tuple[float, float] | Float[ArrayLike, "B 2"] = DEFAULT_AXIAL_RANGE,
+) -> Float[Array, " N"]:
+    """The residual's gate γ(x) ∈ [0, 1]: 0 inside every bone's core, the cylinder of radius ``radius[b]``
+    around the part ``axial_range`` (z / L, for all bones or (B, 2) one per bone) of its segment where the
+    bone samples lie (:func:`ncflow.skeleton.sample_bones`), rising as a smoothstep to 1 at ``outer[b]``
+    (> ``radius[b]``); a bone of radius 0 has no core.
+
+    γ = min_b h(clip((d_b(x) − r_b)/(o_b − r_b), 0, 1)), d_b the distance to bone b's core segment,
+    h(u) = 3u² − 2u³ (C¹: the field stays Lipschitz).
+    """
+    rng = jnp.broadcast_to(jnp.asarray(axial_range, x.dtype), (heads.shape[0], 2))
+    lo, hi = rng[:, :1], rng[:, 1:]
+    d = _segment_distance(x, heads + lo * (tails - heads), heads + hi * (tails - heads))
+    r, o = jnp.asarray(radius, x.dtype), jnp.asarray(outer, x.dtype)
+    u = jnp.where(r > 0, (d - r) / jnp.where(r > 0, o - r, 1.0), 1.0)
+    u = jnp.clip(jnp.min(u, axis=-1), 0.0, 1.0)
+    return u * u * (3.0 - 2.0 * u)
+
+
 class SkinnedField(eqx.Module):
     """F(x, t) = Σ_b w_b(x, t) ξ_b(t)(x) + residual(x, t) (see the module docstring).
 
@@ -124,11 +150,17 @@ class SkinnedField(eqx.Module):
         weight_mode: "current" (default) or "start" — where the bone weights are taken; see the
             module docstring. Only the integrator (:func:`ncflow.flow.integrate`, through
             :meth:`on_grid`) knows the starts: a direct call ``field(x, t)`` takes x as the start.
+        core: (B,) radii of the bones' rigid cores (0: none), or None for no cores: the residual is
+            faded out around every bone (:func:`core_gate`), so that points in a core move with the
+            skeleton alone; held as an array, never trained, like ``width``.
+        core_outer: (B,) where the residual is whole again (default twice ``core``).
+        core_ranges: (B, 2) the part of each bone (z / L) its core covers (default 10 %–90 %).
     """
 
     residual: eqx.Module
     pose: Pose
     width: Float[Array, ""]
+    core: Float[Array, "B 4"] | None
     skeleton: Skeleton = eqx.field(static=True)
     interp: str = eqx.field(static=True, default="sclerp")
     weight_mode: str = eqx.field(static=True, default="current")
@@ -142,15 +174,30 @@ class SkinnedField(eqx.Module):
         interp: str = "sclerp",
         dtype=jnp.float32,
         weight_mode: str = "current",
+        core: Float[ArrayLike, " B"] | None = None,
+        core_outer: Float[ArrayLike, " B"] | None = None,
+        core_ranges: Float[ArrayLike, "B 2"] | None = None,
     ):
         if not width > 0:
             raise ValueError(f"width must be positive, got {width}")
         if weight_mode not in WEIGHT_MODES:
             raise ValueError(f"weight_mode must be one of {WEIGHT_MODES}, got {weight_mode!r}")
+        if core is not None and (np.shape(core) != (skeleton.n_bones,) or not np.all(np.asarray(core) >= 0)):
+            raise ValueError(f"core must hold {skeleton.n_bones} radii (0: none), got shape {np.shape(core)}")
+        if core is not None and core_outer is not None:
+            c, o = np.asarray(core), np.asarray(core_outer)
+            if o.shape != c.shape or not np.all((c == 0) | (o > c)):
+                raise ValueError("core_outer must exceed core for every bone with a core")
         self.residual = residual
         self.skeleton = skeleton
         self.pose = rest_pose(skeleton, dtype) if pose is None else pose
         self.width = jnp.asarray(width, dtype)
+        if core is None:
+            self.core = None
+        else:
+            ranges = np.broadcast_to(DEFAULT_AXIAL_RANGE if core_ranges is None else core_ranges, (skeleton.n_bones, 2))
+            outer = 2.0 * np.asarray(core) if core_outer is None else np.asarray(core_outer)
+            self.core = jnp.asarray(np.column_stack([np.asarray(core), outer, ranges]), dtype)  # radius, outer, lo, hi
         self.interp = interp
         self.weight_mode = weight_mode
 
@@ -191,9 +238,13 @@ class SkinnedField(eqx.Module):
         """The articulated part Σ_b w_b ξ_b(x) at points x (N, 3) and time t (x taken as the start too)."""
         return _blend(x, self._motion(t), self._width())
 
+    def _core(self) -> Float[Array, "B 4"] | None:
+        return None if self.core is None else jax.lax.stop_gradient(self.core)
+
     def __call__(self, x: Float[Array, "N 3"], t: Float[Array, ""] | float) -> Float[Array, "N 3"]:
         """Velocities at points x (N, 3) and time t (scalar), x taken as the start too."""
-        return self.skeleton_velocity(x, t) + self.residual(x, t)
+        motion = self._motion(t)
+        return _blend(x, motion, self._width()) + _gated(self.residual(x, t), x, motion, self._core())
 
     def on_grid(self, n_times: int, dtype=None, x0: Float[Array, "N 3"] | None = None) -> _GridSkinnedField:
         """The same field for the integrator's grid t_k = k/(T−1) and the start points ``x0``: the
@@ -206,7 +257,7 @@ class SkinnedField(eqx.Module):
         fixed = None
         if self.weight_mode == "start" and x0 is not None:
             fixed = skinning_weights(jnp.asarray(x0), motion[0][0], motion[1][0], self._width())  # bones at t_0 = 0
-        return _GridSkinnedField(self.residual, motion, self._width(), n_times, fixed)
+        return _GridSkinnedField(self.residual, motion, self._width(), self._core(), n_times, fixed)
 
 
 WEIGHT_MODES = ("current", "start")
@@ -231,9 +282,22 @@ class _GridSkinnedField(eqx.Module):
     residual: eqx.Module
     motion: tuple
     width: Float[Array, ""]
+    core: Array | None
     n_times: int = eqx.field(static=True)
     fixed: Array | None = None
 
     def __call__(self, x, t):
         k = jnp.clip(jnp.round(jnp.asarray(t) * (self.n_times - 1)), 0, self.n_times - 1).astype(jnp.int32)
-        return _blend(x, tuple(m[k] for m in self.motion), self.width, self.fixed) + self.residual(x, t)
+        motion = tuple(m[k] for m in self.motion)
+        residual = _gated(self.residual(x, t), x, motion, self.core)
+        return _blend(x, motion, self.width, self.fixed) + residual
+
+
+def _gated(residual, x, motion, core):
+    """The residual times :func:`core_gate` of the bones posed by ``motion`` (unchanged without cores;
+    ``core`` (B, 4): radius, outer radius, axial range).
+    """
+    if core is None:
+        return residual
+    heads, tails, *_ = motion
+    return residual * core_gate(x, heads, tails, core[:, 0], core[:, 1], core[:, 2:])[:, None]

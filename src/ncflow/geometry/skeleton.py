@@ -116,6 +116,12 @@ class Skeleton:
         return np.stack([self.parents[1:], child], axis=1)
 
     @property
+    def bone_names(self) -> list[str]:
+        """(B,) "parent -> child" per bone, by joint name or "joint j" (the names ``metrics.json`` uses)."""
+        names = self.names or tuple(f"joint {j}" for j in range(self.n_joints))
+        return [f"{names[self.parents[j]]} -> {names[j]}" for j in range(1, self.n_joints)]
+
+    @property
     def offsets(self) -> Float[np.ndarray, "J 3"]:
         """Rest offsets o_j = P_j − P_parent(j); for the root its absolute position P_0."""
         off = self.positions - self.positions[np.maximum(self.parents, 0)]

@@ -130,6 +130,8 @@ class Arrays:
     centroid_valid: Bool[Array, " K"]
     skeleton: Skeleton
     radii: np.ndarray
+    ranges: np.ndarray  # (B, 2) the part of each bone its samples and rigid core cover
+    inside: np.ndarray  # (B,) the share of each bone's axis inside the source
 
     @classmethod
     def from_problem(cls, problem: Setup, pad: bool = True) -> Arrays:
@@ -155,7 +157,24 @@ class Arrays:
             centroid_valid=jnp.asarray(np.arange(size) < k),
             skeleton=problem.skeleton_normalized,
             radii=problem.bone_radii,
+            ranges=problem.bone_ranges,
+            inside=problem.bone_inside,
         )
+
+
+def bone_cores(
+    skeleton: Skeleton, radii: float | Float[np.ndarray, " B"], ramp: float, inside: Float[np.ndarray, " B"] | None = None
+) -> tuple[Float[np.ndarray, " B"], Float[np.ndarray, " B"]]:
+    """The rigid cores of :class:`ncflow.flow.SkinnedField` (``flow.rigid_core`` = ``ramp``): per bone its
+    core radius c_b, the radius of its sample cylinder ρ_b · L_b (radius factors ``radii``, as
+    :func:`ncflow.skeleton.sample_bones` draws them, :func:`ncflow.matcher.prepare.bone_radii`), and the radius (1 + ramp) c_b
+    where the Flow-Net is whole again; c_b = 0 (no core) for a bone whose axis is nowhere inside the
+    source (``inside``, :func:`ncflow.skeleton.checks.inside_axial_ranges`).
+    """
+    cores = np.asarray(radii, np.float64) * np.asarray(skeleton.bone_lengths, np.float64)
+    if inside is not None:
+        cores = np.where(np.asarray(inside) > 0, cores, 0.0)
+    return cores, (1.0 + ramp) * cores
 
 
 def objective(
@@ -199,7 +218,9 @@ def objective(
     kb, kt, ke = jax.random.split(key, 3)
     src, nv = arrays.source, arrays.source.shape[0]
     times = time_grid(s.n_times, DTYPE)
-    bones = sample_bones(arrays.skeleton, kb, s.n_bone_samples, radius=arrays.radii, dtype=DTYPE).points  # (B, n, 3)
+    bones = sample_bones(
+        arrays.skeleton, kb, s.n_bone_samples, radius=arrays.radii, axial_range=arrays.ranges, dtype=DTYPE
+    ).points  # (B, n, 3)
     nb = bones.shape[0] * bones.shape[1]
     parts = [src, bones.reshape(-1, 3)]
     if s.n_tissue:

@@ -26,6 +26,7 @@ from ncflow.geometry.repair import Repair
 from ncflow.geometry.topology import Topology, mesh_topology
 from ncflow.matcher.inputs import check_inputs, intake, load_inputs
 from ncflow.skeleton import Skeleton
+from ncflow.skeleton.checks import bones_partly_outside, flesh_radius, inside_axial_ranges
 from ncflow.tissue import centroids_digest, load_tissue_file, tissue_centroids
 
 DTYPE = jnp.float32  # training dtype (DESIGN.md: float32 for training)
@@ -54,7 +55,11 @@ class Setup:
         skeleton_normalized: the skeleton in normalised coordinates.
         source_topology: edge table of the working source.
         target_topology: edge table of the target (``target_faces``).
-        bone_radii: (B,) bone-sample radius factor per bone.
+        bone_radii: (B,) bone-sample radius factor per bone (:func:`bone_radii`).
+        bone_ranges: (B, 2) the part of each bone (z / L) its samples and rigid core cover: the part of
+            its axis inside the working source (:func:`ncflow.skeleton.checks.inside_axial_ranges`).
+        bone_inside: (B,) the share of each bone's axis inside the working source.
+        bone_flesh: (B,) how far each bone's skin lies from it (:func:`ncflow.skeleton.checks.flesh_radius`).
         centroids: (K, 3) soft-tissue tet centroids of the normalised source ((0, 3) when disabled).
         tissue_info: how the centroids were obtained (cache hit, counts, seconds).
         tissue_seconds: wall time of obtaining the centroids.
@@ -79,11 +84,28 @@ class Setup:
     source_topology: Topology
     target_topology: Topology
     bone_radii: Float[np.ndarray, " B"]
+    bone_ranges: Float[np.ndarray, "B 2"]
+    bone_inside: Float[np.ndarray, " B"]
+    bone_flesh: Float[np.ndarray, " B"]
     centroids: Float[np.ndarray, "K 3"]
     tissue_info: dict
     tissue_seconds: float
     warnings: tuple[str, ...]
     skinning_weights: dict
+
+
+def bone_radii(config, skeleton: Skeleton, flesh: Float[np.ndarray, " B"]) -> Float[np.ndarray, " B"]:
+    """(B,) the bone samples' radius factors ρ_b: the skeleton's own or ``sampling.bone_radius``; with the
+    skeleton-driven field's rigid cores (ramp ``flow.rigid_core``), no more than
+    flesh_b / ((1 + ramp) L_b), so that the core around the samples and its ramp end inside the bone's
+    flesh (``flesh``: :func:`ncflow.skeleton.checks.flesh_radius`) and the skin keeps the whole Flow-Net:
+    a thin limb's samples lie closer to its axis.
+    """
+    radii = skeleton.bone_radii(config.sampling.bone_radius)
+    ramp = config.flow.rigid_core
+    if config.flow.skinning and ramp > 0:
+        return np.minimum(radii, np.asarray(flesh) / ((1.0 + ramp) * np.asarray(skeleton.bone_lengths)))
+    return radii
 
 
 def skinning_width(config, skeleton: Skeleton) -> float:
@@ -146,6 +168,9 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Setu
     source_topology = mesh_topology(work.faces, work.vertices.shape[0], name=src.name)
     target_topology = mesh_topology(tgt_f, tgt_c.n_vertices, name=tgt.name)
     weights = skinning_weight_mode(config, work.vertices, work.faces, tgt_c.vertices, tgt_f)
+    ranges, inside = inside_axial_ranges(skel_n, work.vertices, work.faces)
+    flesh = flesh_radius(skel_n, work.vertices)
+    warnings.extend(bones_partly_outside(skel, inside))
     if weights["mode"] == "start" and config.flow.skinning_weights == "auto":
         message(
             f"the target passes through itself ({weights['target_overlap']:.1%} of its area, the source "
@@ -166,7 +191,10 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Setu
         skeleton_normalized=skel_n,
         source_topology=source_topology,
         target_topology=target_topology,
-        bone_radii=skel_n.bone_radii(config.sampling.bone_radius),
+        bone_radii=bone_radii(config, skel_n, flesh),
+        bone_ranges=ranges,
+        bone_inside=inside,
+        bone_flesh=flesh,
         centroids=centroids,
         tissue_info=tissue_info,
         tissue_seconds=tissue_seconds,

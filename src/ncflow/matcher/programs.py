@@ -39,7 +39,7 @@ from ncflow.skeleton.kinematics import Pose, rest_pose
 FINAL_BONE_SAMPLES = 200  # per bone, for the reported g_k (fresh samples, so an estimate of the integral)
 
 
-def output_flow_program(skeleton, radii, n_times: int):
+def output_flow_program(skeleton, radii, ranges, n_times: int):
     """The compiled program of :func:`output_motion`: ``(field, points, times, key)`` → the frames
     (Q, N, 3) of ``points`` at ``times``, FINAL_BONE_SAMPLES fresh samples per bone (B, n, 3) and
     their grid states (T, B, n, 3). Built once per problem, so that it can be compiled ahead
@@ -48,7 +48,7 @@ def output_flow_program(skeleton, radii, n_times: int):
 
     @eqx.filter_jit
     def output_flow(field, points, times, key):
-        bones = sample_bones(skeleton, key, FINAL_BONE_SAMPLES, radius=radii, dtype=DTYPE).points
+        bones = sample_bones(skeleton, key, FINAL_BONE_SAMPLES, radius=radii, axial_range=ranges, dtype=DTYPE).points
         xs, vs = integrate(field, jnp.concatenate([points, bones.reshape(-1, 3)]), n_times)
         m = points.shape[0]
         return hermite(xs[:, :m], vs[:, :m], times), bones, xs[:, m:].reshape(n_times, *bones.shape)
@@ -96,7 +96,7 @@ class OutputPrograms:
     def build(cls, arrays, config) -> OutputPrograms:
         """Both programs of a problem (nothing is compiled yet)."""
         return cls(
-            output_flow_program(arrays.skeleton, arrays.radii, config.flow.n_times),
+            output_flow_program(arrays.skeleton, arrays.radii, arrays.ranges, config.flow.n_times),
             output_refit_program(arrays.skeleton, config),
         )
 

@@ -38,6 +38,7 @@ from ncflow.matcher.train import Trained, TrainingError, TrainState
 from ncflow.optim.mdmm import Multipliers
 from ncflow.skeleton import Skeleton
 from ncflow.skeleton.kinematics import Pose
+from ncflow.skeleton.reach import skin_stretch
 
 
 @dataclasses.dataclass
@@ -120,7 +121,7 @@ class MatchResult:
 
 def output_motion(field, source: np.ndarray, frame_times: np.ndarray, n_times: int, skeleton, radii, key, program):
     """The trained flow of everything the outputs need, in one compiled program (``program``:
-    :func:`~ncflow.matcher.programs.output_flow_program` of (skeleton, radii, n_times)): the source's frames
+    :func:`~ncflow.matcher.programs.output_flow_program` of (skeleton, radii, ranges, n_times)): the source's frames
     (Q, V, 3) at ``frame_times`` (cubic Hermite between grid states, exact at grid times) and
     FINAL_BONE_SAMPLES fresh samples per bone (B, n, 3) with their grid states (T, B, n, 3). The source
     is padded to a size bucket (:func:`ncflow.jit.buckets.pad_points`, copies of its first vertex; each
@@ -191,11 +192,12 @@ def build_result(
     maps = correspondence_maps(src_v, src_r.input_faces, deformed_n, target_points, tgt_r.input_faces)
     maps["map_face"] = src_r.face_origin[maps["map_face"]]  # the face of the source as given
     pivot = src_v.mean(axis=0)
+    stretch = skin_stretch(src_v, deformed_n, setup.skeleton_normalized)
     frames_n = move_back(placed.placement, frames_n, frame_times, pivot)
     joints = move_back(placed.placement, joints, frame_times, pivot)
     deformed_n = frames_n[-1]
     timings = dict(timings, outputs=time.perf_counter() - t0)
-    metrics = _metrics(setup, placed, trained, programs, targets, cfg, g_ep, g_tr, maps, timings, waited)
+    metrics = _metrics(setup, placed, trained, programs, targets, cfg, g_ep, g_tr, maps, timings, waited, stretch)
     return MatchResult(
         source=setup.source,
         target=setup.target,
@@ -216,12 +218,14 @@ def build_result(
     )
 
 
-def _bone_rows(skeleton: Skeleton, g_ep, g_tr, mult: Multipliers, eps: float, aim: float, scale: float) -> list[dict]:
+def _bone_rows(
+    skeleton: Skeleton, g_ep, g_tr, mult: Multipliers, eps: float, aim: float, scale: float, stretch: np.ndarray
+) -> list[dict]:
     lam, g_mean = np.asarray(mult.lam), np.asarray(mult.g_mean)
-    names = skeleton.names or tuple(f"joint {j}" for j in range(skeleton.n_joints))
+    names = skeleton.bone_names
     return [
         {
-            "bone": f"{names[skeleton.parents[j]]} -> {names[j]}",
+            "bone": names[j - 1],
             "g_endpoint": float(g_ep[j - 1]),
             "g_trajectory": float(g_tr[j - 1]),
             "rms_distance_endpoint": float(np.sqrt(g_ep[j - 1]) / scale),
@@ -229,6 +233,7 @@ def _bone_rows(skeleton: Skeleton, g_ep, g_tr, mult: Multipliers, eps: float, ai
             "multiplier_endpoint": float(lam[0, j - 1]),
             "multiplier_trajectory": float(lam[1, j - 1]),
             "held_in_training": bool(g_mean[0, j - 1] <= aim and g_mean[1, j - 1] <= aim),
+            "skin_stretch": None if not np.isfinite(stretch[j - 1]) else float(stretch[j - 1]),
         }
         for j in range(1, skeleton.n_joints)
     ]
@@ -274,7 +279,30 @@ def bones_beyond_tolerance(rows: list[dict], eps: float) -> tuple[list[dict], st
     return beyond, f"{len(beyond)} of {len(rows)} bones end beyond their tolerance ε: {named}{more}; {cause}"
 
 
-def _metrics(setup, placed, trained, programs, targets, cfg, g_ep, g_tr, maps, timings, waited) -> dict:
+def bones_out_of_reach(rows: list[dict], limit: float) -> tuple[list[dict], str | None]:
+    """The bones whose skin the match stretched along them by more than ``limit`` or squeezed below
+    1/``limit`` (``skin_stretch`` of :func:`_bone_rows`, :func:`ncflow.skeleton.reach.skin_stretch`; most
+    changed first), and the warning that names them: the skeleton did not reach the target there, the
+    skin was pulled along a bone that cannot change its length. None when there are none.
+    """
+    out = [
+        {"bone": r["bone"], "skin_stretch": r["skin_stretch"]}
+        for r in rows
+        if r["skin_stretch"] is not None and abs(np.log(r["skin_stretch"])) > np.log(limit) + 1e-12
+    ]
+    out.sort(key=lambda b: -abs(np.log(b["skin_stretch"])))
+    if not out:
+        return out, None
+    named = ", ".join(f"{b['bone']} (× {b['skin_stretch']:.2f})" for b in out[:5])
+    more = f" and {len(out) - 5} more" if len(out) > 5 else ""
+    return out, (
+        f"the skeleton did not reach the target along {len(out)} of {len(rows)} bones: their skin was stretched "
+        f"or squeezed along the bone by more than × {limit:g}: {named}{more}; the target's limb may be longer "
+        "or shorter than the bone, or missing (constraints.reach_stretch)"
+    )
+
+
+def _metrics(setup, placed, trained, programs, targets, cfg, g_ep, g_tr, maps, timings, waited, stretch) -> dict:
     """Everything ``metrics.json`` says of a match."""
     norm, skeleton, eps = setup.normalization, setup.skeleton, cfg.constraints.eps
     ahead_seconds, compile_ahead = programs.report()
@@ -284,8 +312,10 @@ def _metrics(setup, placed, trained, programs, targets, cfg, g_ep, g_tr, maps, t
     timings["total"] = sum(v for k, v in timings.items() if k in ("setup", "train", "outputs"))
     search = placed.pose_search
     aim = cfg.constraints.margin * eps
-    bones = _bone_rows(skeleton, g_ep, g_tr, trained.state.multipliers, eps, aim, norm.scale)
+    bones = _bone_rows(skeleton, g_ep, g_tr, trained.state.multipliers, eps, aim, norm.scale, stretch)
     beyond, warning = bones_beyond_tolerance(bones, eps)
+    unreached, reach_warning = bones_out_of_reach(bones, cfg.constraints.reach_stretch)
+    warnings = list(setup.warnings) + ([warning] if warning and cfg.constraints.mode == "mdmm" else [])
     return {
         "ncflow_version": __version__,
         "seed": cfg.seed,
@@ -307,6 +337,7 @@ def _metrics(setup, placed, trained, programs, targets, cfg, g_ep, g_tr, maps, t
             "all_satisfied": bool(np.all(g_ep <= eps) and np.all(g_tr <= eps)),
             "bones": bones,
             "beyond_tolerance": beyond,
+            "out_of_reach": unreached,
         },
         "correspondence": {
             "mean_distance_target_to_flowed_source": float(np.mean(maps["dist_tgt_to_src"]) / norm.scale),
@@ -317,7 +348,7 @@ def _metrics(setup, placed, trained, programs, targets, cfg, g_ep, g_tr, maps, t
         "tissue": setup.tissue_info,
         "normalization": norm.to_dict(),
         "placement": placed.placement.to_dict(norm.scale),
-        "warnings": list(setup.warnings) + ([warning] if warning and cfg.constraints.mode == "mdmm" else []),
+        "warnings": warnings + ([reach_warning] if reach_warning else []),
         "timings": timings,
         "config": config_to_dict(cfg),
         "versions": _versions(),

@@ -25,7 +25,7 @@ from ncflow.errors import NcflowError
 from ncflow.flow import GSONet, SkinnedField, make_flow_field
 from ncflow.jit.cache import jit_run_once
 from ncflow.matcher.guard import DivergenceGuard
-from ncflow.matcher.objective import Arrays, Params, Settings, objective
+from ncflow.matcher.objective import Arrays, Params, Settings, bone_cores, objective
 from ncflow.matcher.prepare import DTYPE, skinning_width
 from ncflow.matcher.progress import Progress
 from ncflow.matcher.stages import Stage, phase_schedule
@@ -39,14 +39,29 @@ class TrainingError(NcflowError):
     """The optimisation failed (a non-finite loss); nothing is written."""
 
 
-def init_params(key, config, skeleton: Skeleton, pose: Pose | None = None, weight_mode: str = "current") -> Params:
+def init_params(
+    key,
+    config,
+    skeleton: Skeleton,
+    pose: Pose | None = None,
+    weight_mode: str = "current",
+    arrays: Arrays | None = None,
+) -> Params:
     """Flow field (skeleton-driven when ``flow.skinning``, starting at ``pose``, default the rest pose,
-    its bone weights by ``weight_mode``) and GSO-Net, initialised from ``key``.
+    its bone weights by ``weight_mode``, with rigid cores when ``flow.rigid_core``:
+    :func:`~ncflow.matcher.objective.bone_cores` of the problem's ``arrays`` — around its bone samples,
+    over the part of each bone inside the source — or, without them, at ``sampling.bone_radius`` over
+    the samples' default range) and GSO-Net, initialised from ``key``.
     """
     kf, kg = jax.random.split(key)
     f = config.flow
     field = make_flow_field(kf, width=f.width, depth=f.depth, div_free=f.div_free, dtype=DTYPE)
     if f.skinning:
+        core = outer = ranges = None
+        if f.rigid_core > 0:
+            radii = skeleton.bone_radii(config.sampling.bone_radius) if arrays is None else arrays.radii
+            core, outer = bone_cores(skeleton, radii, f.rigid_core, None if arrays is None else arrays.inside)
+            ranges = None if arrays is None else arrays.ranges
         field = SkinnedField(
             field,
             skeleton,
@@ -55,6 +70,9 @@ def init_params(key, config, skeleton: Skeleton, pose: Pose | None = None, weigh
             interp=config.interp,
             dtype=DTYPE,
             weight_mode=weight_mode,
+            core=core,
+            core_outer=outer,
+            core_ranges=ranges,
         )
     return Params(field, GSONet(kg, width=f.gso_width, depth=f.gso_depth, dtype=DTYPE))
 
@@ -69,6 +87,8 @@ def parameter_labels(params: Params):
             lambda p: p.flow.pose, labels, replace_fn=lambda sub: jax.tree_util.tree_map(lambda _: "pose", sub)
         )
         labels = eqx.tree_at(lambda p: p.flow.width, labels, "frozen")
+        if params.flow.core is not None:
+            labels = eqx.tree_at(lambda p: p.flow.core, labels, "frozen")
     return labels
 
 
@@ -145,7 +165,7 @@ def training_programs(
     cfg = config
 
     def initial_params(k, p):  # one program, not one per layer shape and operation
-        return init_params(k, cfg, arrays.skeleton, p, weight_mode)
+        return init_params(k, cfg, arrays.skeleton, p, weight_mode, arrays)
 
     optimizer = build_optimizer(cfg)
     metrics = tuple(dict.fromkeys(st.metric for st in stages))

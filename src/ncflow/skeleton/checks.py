@@ -16,6 +16,7 @@ from jaxtyping import Float, Int
 from ncflow.geometry.skeleton import Skeleton
 from ncflow.geometry.topology import mesh_topology
 from ncflow.geometry.winding import winding_numbers
+from ncflow.skeleton.samples import DEFAULT_AXIAL_RANGE
 
 
 def _surface_distance(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
@@ -79,3 +80,110 @@ def check_inside_at(
         ]
         for surface_tol, far in tolerances
     ]
+
+
+AXIS_PROBES = 17
+"""Points per bone axis at which :func:`inside_axial_ranges` asks whether the bone is inside its mesh."""
+
+
+def inside_axial_ranges(
+    skeleton: Skeleton,
+    vertices: Float[np.ndarray, "V 3"],
+    faces: Int[np.ndarray, "F 3"],
+    axial_range: tuple[float, float] = DEFAULT_AXIAL_RANGE,
+) -> tuple[Float[np.ndarray, "B 2"], Float[np.ndarray, " B"]]:
+    """Per bone, the part of ``axial_range`` (z / L) along which its axis is inside the mesh, and the
+    share of the axis that is.
+
+    :data:`AXIS_PROBES` points evenly spaced over ``axial_range`` on each bone's axis are inside where
+    their generalised winding number is ½ or more in magnitude (a mesh wound inside out counts too;
+    :func:`~ncflow.geometry.winding.winding_numbers`).
+    A bone's range is its longest run of inside probes, widened by half a probe spacing at each end
+    within ``axial_range`` — a bone that runs outside the body, as a root bone from the ground to the
+    hips does in many rigs, keeps the samples (:func:`~ncflow.skeleton.samples.sample_bones`) and the
+    rigid core (:class:`ncflow.flow.SkinnedField`) on its part inside the flesh. A bone entirely inside
+    gets ``axial_range``; one with no inside probe also gets ``axial_range``, and a share of 0.
+
+    Returns:
+        ranges (B, 2) in [lo, hi] of ``axial_range``, and inside (B,) the share of inside probes.
+    """
+    lo, hi = axial_range
+    z = np.linspace(lo, hi, AXIS_PROBES)
+    start = skeleton.positions[skeleton.parents[1:]]
+    vec = skeleton.positions[1:] - start
+    probes = start[:, None, :] + z[None, :, None] * vec[:, None, :]  # (B, P, 3)
+    tri = np.asarray(vertices, np.float64)[np.asarray(faces, np.int64)]
+    inside = np.abs(winding_numbers(probes.reshape(-1, 3), tri)).reshape(vec.shape[0], AXIS_PROBES) >= 0.5
+    ranges = np.tile([lo, hi], (vec.shape[0], 1)).astype(np.float64)
+    half = 0.5 * (hi - lo) / (AXIS_PROBES - 1)
+    for b, row in enumerate(inside):
+        if row.all() or not row.any():
+            continue
+        edges = np.diff(np.concatenate([[0], row.astype(np.int8), [0]]))
+        starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
+        k = int(np.argmax(ends - starts))
+        ranges[b] = max(lo, z[starts[k]] - half), min(hi, z[ends[k]] + half)
+    return ranges, inside.mean(axis=1)
+
+
+def bones_partly_outside(skeleton: Skeleton, inside: Float[np.ndarray, " B"], share: float = 0.5) -> list[str]:
+    """One warning line per bone whose axis lies inside the mesh over less than ``share`` of its length
+    (``inside`` from :func:`inside_axial_ranges`), saying what the matcher does with it.
+    """
+    lines = []
+    names = skeleton.bone_names
+    for b in np.flatnonzero(np.asarray(inside) < share):
+        name = f"bone {names[b]}"
+        if inside[b] == 0:
+            lines.append(f"{name} lies outside the source: nothing of it holds flesh, its samples lie in empty space")
+        else:
+            lines.append(
+                f"{name} lies outside the source over {1 - inside[b]:.0%} of its length: its samples and rigid "
+                "core cover the part inside"
+            )
+    return lines
+
+
+def skin_vertices(
+    rest: Float[np.ndarray, "V 3"], skeleton: Skeleton, axial_range: tuple[float, float] = DEFAULT_AXIAL_RANGE
+) -> np.ndarray:
+    """(V,) the bone whose skin each rest vertex is (its nearest bone segment), or −1 for a vertex whose
+    projection on that segment falls outside ``axial_range`` (near a joint, where the skin of two bones
+    bends with the joint).
+    """
+    p = np.asarray(skeleton.positions, np.float64)
+    bones = np.asarray(skeleton.bones)
+    a, ab = p[bones[:, 0]], p[bones[:, 1]] - p[bones[:, 0]]
+    x = np.asarray(rest, np.float64)
+    u = np.einsum("vbi,bi->vb", x[:, None, :] - a[None], ab) / np.maximum(np.sum(ab * ab, 1), 1e-300)
+    closest = a[None] + np.clip(u, 0.0, 1.0)[..., None] * ab[None]
+    owner = np.argmin(np.linalg.norm(x[:, None, :] - closest, axis=-1), axis=1)
+    along = u[np.arange(x.shape[0]), owner]
+    lo, hi = axial_range
+    return np.where((along >= lo) & (along <= hi), owner, -1)
+
+
+FLESH_QUANTILE = 10
+"""The percentile of a bone's skin distances that :func:`flesh_radius` reports."""
+
+
+def flesh_radius(
+    skeleton: Skeleton, vertices: Float[np.ndarray, "V 3"], axial_range: tuple[float, float] = DEFAULT_AXIAL_RANGE
+) -> Float[np.ndarray, " B"]:
+    """(B,) how far each bone's skin lies from it: the :data:`FLESH_QUANTILE`-th percentile of the distances
+    from its skin vertices (:func:`skin_vertices`) to its segment; inf for a bone with fewer than 3 skin
+    vertices. The rigid cores of :class:`ncflow.flow.SkinnedField` stay inside it.
+    """
+    v = np.asarray(vertices, np.float64)
+    owner = skin_vertices(v, skeleton, axial_range)
+    p = np.asarray(skeleton.positions, np.float64)
+    bones = np.asarray(skeleton.bones)
+    out = np.full(skeleton.n_bones, np.inf)
+    for k in range(skeleton.n_bones):
+        x = v[owner == k]
+        if x.shape[0] < 3:
+            continue
+        a, ab = p[bones[k, 0]], p[bones[k, 1]] - p[bones[k, 0]]
+        u = np.clip((x - a) @ ab / max(float(ab @ ab), 1e-300), 0.0, 1.0)
+        out[k] = np.percentile(np.linalg.norm(x - (a + u[:, None] * ab), axis=1), FLESH_QUANTILE)
+    return out

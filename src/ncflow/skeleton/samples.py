@@ -67,7 +67,7 @@ def sample_bones(
     *,
     radius: float | Float[ArrayLike, " B"] | None = None,
     axis_fraction: float = 0.2,
-    axial_range: tuple[float, float] = DEFAULT_AXIAL_RANGE,
+    axial_range: tuple[float, float] | Float[ArrayLike, "B 2"] = DEFAULT_AXIAL_RANGE,
     dtype=None,
 ) -> BoneSamples:
     """Draw n samples per bone (paper Eq. 21's spatial samples).
@@ -79,7 +79,8 @@ def sample_bones(
         radius: radius factor ρ (cylinder radius ρ·L): a float for all bones, (B,) per bone, or
             None for the skeleton's per-bone values with 0.1 as the default.
         axis_fraction: share of samples on the axis (default 0.2; at least 2).
-        axial_range: range of z / L (default 10 %–90 %).
+        axial_range: range of z / L (default 10 %–90 %), for all bones or (B, 2) one per bone
+            (:func:`ncflow.skeleton.checks.inside_axial_ranges`: the part of each bone inside its mesh).
         dtype: float dtype of the result (default: JAX's default float).
 
     Returns:
@@ -88,9 +89,10 @@ def sample_bones(
     if n < 2:
         raise ValueError(f"need at least 2 samples per bone, got {n}")
     dtype = dtype or jnp.result_type(float)
-    lo, hi = float(axial_range[0]), float(axial_range[1])
-    if not 0.0 <= lo <= hi <= 1.0:
+    ranges = np.broadcast_to(np.asarray(axial_range, np.float64), (skeleton.n_bones, 2))
+    if not np.all((0.0 <= ranges[:, 0]) & (ranges[:, 0] <= ranges[:, 1]) & (ranges[:, 1] <= 1.0)):
         raise ValueError(f"axial_range must satisfy 0 <= lo <= hi <= 1, got {axial_range}")
+    lo, hi = (jnp.asarray(ranges[:, i, None], dtype) for i in (0, 1))  # (B, 1)
     rho = skeleton.bone_radii(DEFAULT_RADIUS) if radius is None else radius
     rho = jnp.broadcast_to(jnp.asarray(rho, dtype), (skeleton.n_bones,))
     start, length, e1, e2, e3 = (jnp.asarray(x, dtype) for x in bone_axes(skeleton))
@@ -98,8 +100,8 @@ def sample_bones(
     n_rand = n - n_axis
     nb = skeleton.n_bones
     k_z, k_r, k_a = jax.random.split(key, 3)
-    z_axis = jnp.broadcast_to(jnp.linspace(lo, hi, n_axis, dtype=dtype), (nb, n_axis))
-    z_rand = jax.random.uniform(k_z, (nb, n_rand), dtype, lo, hi)
+    z_axis = lo + (hi - lo) * jnp.linspace(0.0, 1.0, n_axis, dtype=dtype)
+    z_rand = lo + (hi - lo) * jax.random.uniform(k_z, (nb, n_rand), dtype)
     r_rand = jnp.sqrt(jax.random.uniform(k_r, (nb, n_rand), dtype)) * rho[:, None]
     ang = jax.random.uniform(k_a, (nb, n_rand), dtype, 0.0, 2.0 * np.pi)
     z = jnp.concatenate([z_axis, z_rand], axis=1) * length[:, None]  # (B, n)
