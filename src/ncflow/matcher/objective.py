@@ -163,13 +163,16 @@ class Arrays:
 
 
 def bone_cores(
-    skeleton: Skeleton, radii: float | Float[np.ndarray, " B"], ramp: float, inside: Float[np.ndarray, " B"] | None = None
+    skeleton: Skeleton,
+    radii: float | Float[np.ndarray, " B"],
+    ramp: float,
+    inside: Float[np.ndarray, " B"] | None = None,
 ) -> tuple[Float[np.ndarray, " B"], Float[np.ndarray, " B"]]:
     """The rigid cores of :class:`ncflow.flow.SkinnedField` (``flow.rigid_core`` = ``ramp``): per bone its
     core radius c_b, the radius of its sample cylinder ρ_b · L_b (radius factors ``radii``, as
-    :func:`ncflow.skeleton.sample_bones` draws them, :func:`ncflow.matcher.prepare.bone_radii`), and the radius (1 + ramp) c_b
-    where the Flow-Net is whole again; c_b = 0 (no core) for a bone whose axis is nowhere inside the
-    source (``inside``, :func:`ncflow.skeleton.checks.inside_axial_ranges`).
+    :func:`ncflow.skeleton.sample_bones` draws them, :func:`ncflow.matcher.prepare.bone_radii`), and the
+    radius (1 + ramp) c_b where the Flow-Net is whole again; c_b = 0 (no core) for a bone whose axis is
+    nowhere inside the source (``inside``, :func:`ncflow.skeleton.checks.inside_axial_ranges`).
     """
     cores = np.asarray(radii, np.float64) * np.asarray(skeleton.bone_lengths, np.float64)
     if inside is not None:
