@@ -144,6 +144,27 @@ def bones_partly_outside(skeleton: Skeleton, inside: Float[np.ndarray, " B"], sh
     return lines
 
 
+def _nearest_bones(x: np.ndarray, skeleton: Skeleton) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(V,) each point's nearest bone segment, the place of its projection along that bone (z / L,
+    unclipped) and its distance to the segment.
+    """
+    p = np.asarray(skeleton.positions, np.float64)
+    bones = np.asarray(skeleton.bones)
+    a, ab = p[bones[:, 0]], p[bones[:, 1]] - p[bones[:, 0]]
+    u = np.einsum("vbi,bi->vb", x[:, None, :] - a[None], ab) / np.maximum(np.sum(ab * ab, 1), 1e-300)
+    closest = a[None] + np.clip(u, 0.0, 1.0)[..., None] * ab[None]
+    dist = np.linalg.norm(x[:, None, :] - closest, axis=-1)
+    owner = np.argmin(dist, axis=1)
+    rows = np.arange(x.shape[0])
+    return owner, u[rows, owner], dist[rows, owner]
+
+
+def _skin(x: np.ndarray, skeleton: Skeleton, axial_range: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+    owner, along, dist = _nearest_bones(x, skeleton)
+    lo, hi = axial_range
+    return np.where((along >= lo) & (along <= hi), owner, -1), dist
+
+
 def skin_vertices(
     rest: Float[np.ndarray, "V 3"], skeleton: Skeleton, axial_range: tuple[float, float] = DEFAULT_AXIAL_RANGE
 ) -> np.ndarray:
@@ -151,16 +172,7 @@ def skin_vertices(
     projection on that segment falls outside ``axial_range`` (near a joint, where the skin of two bones
     bends with the joint).
     """
-    p = np.asarray(skeleton.positions, np.float64)
-    bones = np.asarray(skeleton.bones)
-    a, ab = p[bones[:, 0]], p[bones[:, 1]] - p[bones[:, 0]]
-    x = np.asarray(rest, np.float64)
-    u = np.einsum("vbi,bi->vb", x[:, None, :] - a[None], ab) / np.maximum(np.sum(ab * ab, 1), 1e-300)
-    closest = a[None] + np.clip(u, 0.0, 1.0)[..., None] * ab[None]
-    owner = np.argmin(np.linalg.norm(x[:, None, :] - closest, axis=-1), axis=1)
-    along = u[np.arange(x.shape[0]), owner]
-    lo, hi = axial_range
-    return np.where((along >= lo) & (along <= hi), owner, -1)
+    return _skin(np.asarray(rest, np.float64), skeleton, axial_range)[0]
 
 
 FLESH_QUANTILE = 10
@@ -174,16 +186,10 @@ def flesh_radius(
     from its skin vertices (:func:`skin_vertices`) to its segment; inf for a bone with fewer than 3 skin
     vertices. The rigid cores of :class:`ncflow.flow.SkinnedField` stay inside it.
     """
-    v = np.asarray(vertices, np.float64)
-    owner = skin_vertices(v, skeleton, axial_range)
-    p = np.asarray(skeleton.positions, np.float64)
-    bones = np.asarray(skeleton.bones)
+    owner, dist = _skin(np.asarray(vertices, np.float64), skeleton, axial_range)
     out = np.full(skeleton.n_bones, np.inf)
     for k in range(skeleton.n_bones):
-        x = v[owner == k]
-        if x.shape[0] < 3:
-            continue
-        a, ab = p[bones[k, 0]], p[bones[k, 1]] - p[bones[k, 0]]
-        u = np.clip((x - a) @ ab / max(float(ab @ ab), 1e-300), 0.0, 1.0)
-        out[k] = np.percentile(np.linalg.norm(x - (a + u[:, None] * ab), axis=1), FLESH_QUANTILE)
+        d = dist[owner == k]
+        if d.shape[0] >= 3:
+            out[k] = np.percentile(d, FLESH_QUANTILE)
     return out
