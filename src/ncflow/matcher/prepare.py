@@ -59,7 +59,6 @@ class Setup:
         bone_ranges: (B, 2) the part of each bone (z / L) its samples and rigid core cover: the part of
             its axis inside the working source (:func:`ncflow.skeleton.checks.inside_axial_ranges`).
         bone_inside: (B,) the share of each bone's axis inside the working source.
-        bone_flesh: (B,) how far each bone's skin lies from it (:func:`ncflow.skeleton.checks.flesh_radius`).
         centroids: (K, 3) soft-tissue tet centroids of the normalised source ((0, 3) when disabled).
         tissue_info: how the centroids were obtained (cache hit, counts, seconds).
         tissue_seconds: wall time of obtaining the centroids.
@@ -86,7 +85,6 @@ class Setup:
     bone_radii: Float[np.ndarray, " B"]
     bone_ranges: Float[np.ndarray, "B 2"]
     bone_inside: Float[np.ndarray, " B"]
-    bone_flesh: Float[np.ndarray, " B"]
     centroids: Float[np.ndarray, "K 3"]
     tissue_info: dict
     tissue_seconds: float
@@ -169,7 +167,6 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Setu
     target_topology = mesh_topology(tgt_f, tgt_c.n_vertices, name=tgt.name)
     weights = skinning_weight_mode(config, work.vertices, work.faces, tgt_c.vertices, tgt_f)
     ranges, inside = inside_axial_ranges(skel_n, work.vertices, work.faces)
-    flesh = flesh_radius(skel_n, work.vertices)
     warnings.extend(bones_partly_outside(skel, inside))
     if weights["mode"] == "start" and config.flow.skinning_weights == "auto":
         message(
@@ -191,10 +188,9 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Setu
         skeleton_normalized=skel_n,
         source_topology=source_topology,
         target_topology=target_topology,
-        bone_radii=bone_radii(config, skel_n, flesh),
+        bone_radii=bone_radii(config, skel_n, flesh_radius(skel_n, work.vertices)),
         bone_ranges=ranges,
         bone_inside=inside,
-        bone_flesh=flesh,
         centroids=centroids,
         tissue_info=tissue_info,
         tissue_seconds=tissue_seconds,
