@@ -17,6 +17,7 @@ import pytest
 import trimesh
 
 import ncflow.io.result as export
+from gltf_checks import assert_valid_gltf, validate_gltf
 from ncflow.errors import InputError, ResultError
 from ncflow.io.frames import read_skeleton_frames_json, write_frames, write_skeleton_frames_json
 from ncflow.io.gltf.writer import write_animation_glb
@@ -185,6 +186,20 @@ def test_glb_morph_animation(tmp_path, sphere):
     g2 = pygltflib.GLTF2().load_binary(str(tmp_path / "b.glb"))
     np.testing.assert_allclose(_accessor(g2, g2.animations[0].samplers[0].input), times * 5, atol=1e-6)
     assert len(g2.meshes) == 1
+    assert_valid_gltf(path, tmp_path / "b.glb")
+
+
+def test_khronos_validator_finds_a_broken_accessor(tmp_path, sphere):
+    """The validator check can fail: a GLB whose position accessor states a wrong bound is an error."""
+    rest, faces = sphere
+    frames, times = _frames(rest, 3)
+    gltf = pygltflib.GLTF2().load_binary(str(write_animation_glb(tmp_path / "a.glb", frames, faces, times)))
+    position = gltf.accessors[gltf.meshes[0].primitives[0].attributes.POSITION]
+    position.max = [v + 1.0 for v in position.max]
+    gltf.save_binary(str(tmp_path / "broken.glb"))
+    (good, broken) = validate_gltf(tmp_path / "a.glb", tmp_path / "broken.glb")
+    assert good["errors"] == 0
+    assert broken["errors"] >= 1 and any(m[1] == "ACCESSOR_MAX_MISMATCH" for m in broken["messages"])
 
 
 def test_glb_rejects_bad_times(tmp_path, sphere):
@@ -289,6 +304,7 @@ def test_write_then_read_result(tmp_path, sphere):
     for i, target in enumerate(prim.targets):
         np.testing.assert_allclose(base + _accessor(gltf, target["POSITION"]), inputs["frames"][i], atol=1e-5)
     assert trimesh.load(str(out / "animation.glb"), force="mesh", process=False).vertices.shape == (ns, 3)
+    assert_valid_gltf(out / "animation.glb")
     # read_result gives the same back
     r = read_result(out)
     assert (r.n_source, r.n_target, r.n_frames) == (ns, nt, k)

@@ -32,6 +32,7 @@ import numpy as np
 import pygltflib
 import pytest
 
+from gltf_checks import assert_valid_gltf
 from ncflow.cli import main
 from ncflow.errors import InputError
 from ncflow.geometry.rigid import quat_to_matrix
@@ -486,6 +487,20 @@ def test_cli_pose_writes_expected_mesh(arm_glb, tmp_path, capsys):
     assert np.asarray(mesh.faces).shape == (20, 3)
     assert "12 vertices" in capsys.readouterr().out
     assert sorted(p.name for p in out.parent.iterdir()) == ["posed.ply"]  # no temporary left behind
+
+
+def test_cli_pose_writes_a_valid_glb(arm_glb, tmp_path):
+    """A posed mesh saved as .glb (through trimesh) reads back with the same vertices and passes the
+    Khronos validator.
+    """
+    import trimesh
+
+    out = tmp_path / "posed.glb"
+    assert main(["pose", str(arm_glb), "--time", "0.25", "--animation", "bend", "--out", str(out)]) == 0
+    mesh = trimesh.load(str(out), force="mesh", process=False)
+    expected = _expected(_shoulder_translation_bend(0.25), _elbow_rotation_bend(0.25))
+    np.testing.assert_allclose(np.sort(np.asarray(mesh.vertices), axis=0), np.sort(expected, axis=0), atol=1e-6)
+    assert_valid_gltf(out)
 
 
 def test_cli_list(arm_glb, capsys):

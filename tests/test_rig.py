@@ -27,6 +27,7 @@ import pytest
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from gltf_checks import assert_valid_gltf
 from ncflow.cli import main
 from ncflow.errors import InputError
 from ncflow.geometry.barycentric import surface_points
@@ -221,6 +222,13 @@ def test_accessor_bounds_and_layout(rigged):
     gltf.save_binary(str(again))
     back = pygltflib.GLTF2().load_binary(str(again))
     assert back.binary_blob() == gltf.binary_blob() and back.accessors == gltf.accessors and back.nodes == gltf.nodes
+
+
+def test_rigs_pass_the_khronos_validator(case, rigged):
+    """The rigs (source skin weights and skeleton weights, each with its animation) and the skin written
+    by ``write_rig_glb`` without an animation: no error, no warning.
+    """
+    assert_valid_gltf(rigged["skin"].path, rigged["skeleton"].path, case["skin"])
 
 
 def test_pose_back_to_the_source(case, rigged):
