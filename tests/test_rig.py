@@ -320,6 +320,43 @@ def test_cli_writes_and_refuses_to_overwrite(case, capsys):
     assert sorted(p.name for p in case["root"].iterdir() if p.name.startswith(".")) == []  # no temporaries
 
 
+def test_cli_writes_the_motion_as_bvh(case, tmp_path, capsys):
+    """``--bvh``: read back by bvhio, every joint of every frame where the result's skeleton_frames.json
+    has it (within 1e-4 of the skeleton's size); refused without the animation, nothing written then.
+    """
+    import bvhio
+
+    out, bvh = tmp_path / "rig.glb", tmp_path / "motion.bvh"
+    assert main(["rig", str(case["result"]), "--out", str(out), "--bvh", str(bvh)]) == 0
+    assert "motion.bvh" in capsys.readouterr().out
+    res = read_result(case["result"], check_animation=False)
+    frames = res.skeleton_frames
+    size = np.linalg.norm(np.ptp(frames[-1], axis=0))
+    names = list(res.joint_names or case["ch"].skeleton.names)
+    root = bvhio.readAsHierarchy(str(bvh))
+    assert [j.Name for j, _, _ in root.layout()][0] == names[0]
+    for k in range(frames.shape[0]):
+        root.loadPose(k, recursive=True)
+        got = {j.Name: np.array(j.PositionWorld) for j, _, _ in root.layout()}
+        np.testing.assert_allclose(np.array([got[n] for n in names]), frames[k], atol=1e-4 * size)
+    assert (
+        main(
+            [
+                "rig",
+                str(case["result"]),
+                "--out",
+                str(tmp_path / "b.glb"),
+                "--bvh",
+                str(tmp_path / "b.bvh"),
+                "--no-animation",
+            ]
+        )
+        == 2
+    )
+    assert "BVH" in capsys.readouterr().err
+    assert not (tmp_path / "b.glb").exists() and not (tmp_path / "b.bvh").exists()
+
+
 @pytest.fixture
 def copy_result(case, tmp_path):
     def make(drop=()):

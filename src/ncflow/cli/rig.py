@@ -30,6 +30,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--target", metavar="MESH", help="the target mesh, for a result without target.ply")
     p.add_argument("--no-animation", action="store_true", help="write the rig without the clip")
     p.add_argument(
+        "--bvh",
+        metavar="FILE.bvh",
+        help="also write the clip's skeleton motion as a Biovision Hierarchy file (the same joints, bind pose and "
+        "key rotations as the GLB; opens in Blender, MotionBuilder, three.js)",
+    )
+    p.add_argument(
         "--max-distance",
         type=float,
         default=0.05,
@@ -60,6 +66,8 @@ def run(args: argparse.Namespace) -> int:
     if (out.exists() or out.is_symlink()) and not args.overwrite:
         raise InputError("exists (pass --overwrite to replace it)", args.out)
     output_file(args.out, need_bytes=8 * MiB, option="--out")
+    if args.bvh is not None:
+        output_file(args.bvh, need_bytes=MiB, option="--bvh")
     check_number(args.max_distance, "--max-distance", lo=0.0)
     check_number(args.max_angle, "--max-angle", lo=0.0, hi=180.0)
 
@@ -74,6 +82,7 @@ def run(args: argparse.Namespace) -> int:
         overwrite=args.overwrite,
         max_distance=args.max_distance,
         max_normal_angle=args.max_angle,
+        bvh=args.bvh,
     )
     share = 100.0 * report.n_unreliable / max(report.n_vertices, 1)
     source = "the source's glTF skin" if report.weights_from == "gltf skin" else "the skeleton (bone weights)"
@@ -83,4 +92,6 @@ def run(args: argparse.Namespace) -> int:
         f"weights from {source}, {report.n_unreliable} vertices ({share:.1f} %) inpainted; "
         f"bind pose within {report.bind_error:.2g} of the target ({report.seconds:.1f} s)"
     )
+    if args.bvh is not None:
+        print(f"wrote {args.bvh}: the skeleton motion, {report.n_keys} frames")
     return 0

@@ -37,6 +37,7 @@ place.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import os
@@ -50,6 +51,7 @@ from scipy.spatial.transform import Rotation
 
 from ncflow.errors import InputError, ResultError
 from ncflow.io.atomic import atomic_path, check_output_file
+from ncflow.io.bvh import write_bvh
 from ncflow.io.gltf.document import unique_names
 from ncflow.io.gltf.rig_writer import write_rig_glb
 from ncflow.io.gltf.skins import load_gltf_skin
@@ -231,6 +233,7 @@ def rig_result(
     clip_seconds: float = 2.0,
     max_distance: float = DEFAULT_MAX_DISTANCE,
     max_normal_angle: float | None = None,
+    bvh: str | os.PathLike | None = None,
 ) -> RigReport:
     """Write the target of a result folder as a skinned GLB character (module docstring).
 
@@ -247,6 +250,8 @@ def rig_result(
         max_distance: reliability of the carried weights: largest distance to the flowed source,
             as a fraction of the target's bounding-box diagonal.
         max_normal_angle: reliability: largest angle between the normals, degrees (default 30).
+        bvh: also write the clip's skeleton motion as this ``.bvh`` (:func:`ncflow.io.bvh.write_bvh`:
+            the same joints, bind pose and key rotations as the GLB; frame time = clip / (keys − 1)).
 
     Returns:
         :class:`RigReport`.
@@ -262,6 +267,17 @@ def rig_result(
     if (out.exists() or out.is_symlink()) and not overwrite:
         raise InputError("exists (pass overwrite=True / --overwrite to replace it)", out)
     real = check_output_file(out, option="--out")
+    bvh_real = None
+    if bvh is not None:
+        if not animation:
+            raise InputError("a BVH holds the motion: it cannot be written without the animation", bvh)
+        if Path(bvh).suffix.lower() != ".bvh":
+            raise InputError("the skeleton motion is written as Biovision Hierarchy: the file must end with .bvh", bvh)
+        if (Path(bvh).exists() or Path(bvh).is_symlink()) and not overwrite:
+            raise InputError("exists (pass overwrite=True / --overwrite to replace it)", bvh)
+        bvh_real = check_output_file(bvh, option="--bvh")
+        if bvh_real == real:
+            raise InputError("the BVH and the GLB must be two files", bvh)
     if not (math.isfinite(clip_seconds) and clip_seconds > 0):
         raise InputError(f"the clip length must be a positive number of seconds, got {clip_seconds}")
     if not (math.isfinite(max_distance) and max_distance >= 0):
@@ -314,7 +330,10 @@ def rig_result(
         span = t[-1] - t[0]
         keys = (t - t[0]) * (clip_seconds / span) if span > 0 else t - t[0]
         clip = {"key_times": keys, "rotations": quats, "root_translations": sk_frames[:, 0]}
-    with atomic_path(real) as tmp:
+    with atomic_path(real) as tmp, contextlib.ExitStack() as more:
+        if bvh_real is not None:
+            frame_time = float(clip["key_times"][-1] / max(len(clip["key_times"]) - 1, 1)) or clip_seconds
+            write_bvh(more.enter_context(atomic_path(bvh_real)), bind, parents, names, **_bvh_motion(clip, frame_time))
         write_rig_glb(
             tmp,
             vertices=tv,
@@ -339,6 +358,10 @@ def rig_result(
         bind_error=bind_error,
         seconds=time.perf_counter() - start,
     )
+
+
+def _bvh_motion(clip: dict, frame_time: float) -> dict:
+    return {"rotations": clip["rotations"], "root_positions": clip["root_translations"], "frame_time": frame_time}
 
 
 def _check_bind(path: Path, target: np.ndarray, diag: float) -> float:
