@@ -47,6 +47,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     _add_gltf_options(conv)
     conv.set_defaults(func=run_convert)
 
+    sug = ssub.add_parser(
+        "suggest",
+        help="suggest a skeleton for a mesh that has none",
+        description="Suggest a skeleton for MESH: a tree of joints inside the mesh, bones along its limbs, the "
+        "root at the body's centre and a joint near every limb tip, from the Reeb graph of the mesh's average "
+        "geodesic distance (docs/skeleton-suggest.md). Deterministic; seconds on a CPU. Written as TGF or JSON "
+        "in the mesh's own units and placement.",
+    )
+    sug.add_argument("mesh", help="mesh file (OBJ/PLY/OFF/STL/GLB)")
+    sug.add_argument("--out", required=True, metavar="SKELETON", help="output skeleton (.tgf or .json)")
+    sug.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    sug.set_defaults(func=run_suggest)
+
 
 def _load(args: argparse.Namespace, path: str):
     from ncflow.io.skeletons import load_skeleton
@@ -128,4 +141,42 @@ def run_convert(args: argparse.Namespace) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     save_skeleton(out, skel)
     print(f"wrote {args.output}: {skel.n_joints} joints, {skel.n_bones} bones")
+    return 0
+
+
+def run_suggest(args: argparse.Namespace) -> int:
+    import time
+    from pathlib import Path
+
+    from ncflow.cli.options import output_file
+    from ncflow.errors import InputError
+    from ncflow.geometry.mesh import repaired_mesh
+    from ncflow.io.atomic import atomic_path
+    from ncflow.io.meshes import load_mesh
+    from ncflow.io.skeletons import save_skeleton
+    from ncflow.skeleton.checks import check_inside
+    from ncflow.skeleton.suggest import suggest_skeleton
+
+    out = Path(args.out)
+    if out.suffix.lower() not in (".tgf", ".json"):
+        raise InputError("can only write skeletons as .tgf or .json", args.out)
+    if (out.exists() or out.is_symlink()) and not args.overwrite:
+        raise InputError("exists (pass --overwrite to replace it)", args.out)
+    real = output_file(args.out, option="--out")
+    start = time.perf_counter()
+    mesh = repaired_mesh(load_mesh(args.mesh))[0]
+    try:
+        found = suggest_skeleton(mesh.vertices, mesh.faces, name=Path(args.mesh).stem)
+    except InputError as err:
+        raise InputError(str(err), args.mesh) from None
+    skel = found.skeleton
+    real.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(real) as tmp:
+        save_skeleton(tmp, skel)
+    print(
+        f"wrote {args.out}: {skel.n_joints} joints, {skel.n_bones} bones, {found.n_leaves} limb tips "
+        f"({time.perf_counter() - start:.1f} s)"
+    )
+    for warning in check_inside(skel, mesh.vertices, mesh.faces):
+        print(f"warning: {warning}")
     return 0
