@@ -240,7 +240,12 @@ def test_symlinked_out_with_overwrite_never_moves_user_files(tmp_path, monkeypat
         assert (mine / "data" / "scan.ply").read_text() == "my scan\n"
         res = read_result(mine)
         np.testing.assert_allclose(res.frames[0], FakeResult(shift).frames[0], atol=1e-5)
-        no_skeleton = set(CONTRACT_FILES) - {"skeleton_target.tgf", "skeleton_frames.json", "target.ply"}
+        no_skeleton = set(CONTRACT_FILES) - {
+            "skeleton_target.tgf",
+            "skeleton_frames.json",
+            "skeleton_source.tgf",
+            "target.ply",
+        }
         assert sorted(p.name for p in mine.iterdir()) == sorted([*no_skeleton, "notes.txt", "data"])
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in", "link", "mine"]  # nothing moved out
     # a file of the user's inside a contract folder: refused before any work, nothing touched

@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from ncflow.cli import main
 from ncflow.geometry.winding import winding_numbers
-from ncflow.io.meshes import save_mesh
+from ncflow.io.meshes import load_mesh, save_mesh
 from ncflow.skeleton import load_skeleton
 from ncflow.skeleton.suggest import prune_branches, suggest_skeleton
 from ncflow.synthetic.characters import make_character
@@ -118,3 +118,33 @@ def test_cli(tmp_path, capsys):
     assert main(["skeleton", "suggest", str(tiny), "--out", str(tmp_path / "t.tgf")]) == 2
     err = capsys.readouterr().err
     assert "tiny.ply" in err and "too few" in err and not (tmp_path / "t.tgf").exists()
+
+
+def test_match_without_a_skeleton(tmp_path, capsys):
+    """``ncflow match`` without ``--skeleton`` suggests one from the source: named in a warning and in
+    metrics.json, written as skeleton_source.tgf (the suggestion's joints), read back by read_result."""
+    from ncflow.geometry.mesh import repaired_mesh
+    from ncflow.io.result import read_result
+    from ncflow.synthetic.shapes import capsule
+    from tiny import TINY
+
+    vs, fs = capsule(radius=0.4, length=3.0, n_around=12, n_along=16)
+    bend = Rotation.from_rotvec([0.6, 0.0, 0.0]).as_matrix()
+    vt = np.where(vs[:, 2:3] > 0, vs @ bend.T, vs)
+    src, tgt = tmp_path / "a.ply", tmp_path / "b.ply"
+    save_mesh(src, vs, fs)
+    save_mesh(tgt, vt, fs)
+    out = tmp_path / "result"
+    sets = [a for s in [*TINY, "compress=200", "placement=none", "pose_search=false"] for a in ("--set", s)]
+    assert main(["match", str(src), str(tgt), "--out", str(out), "--steps", "12", "--quiet", *sets]) == 0
+    source = repaired_mesh(load_mesh(src))[0]  # the match's intake step, default repair settings
+    expected = suggest_skeleton(source.vertices, source.faces).skeleton
+    written = load_skeleton(out / "skeleton_source.tgf")
+    np.testing.assert_allclose(written.positions, expected.positions, atol=1e-5)
+    np.testing.assert_array_equal(written.parents, expected.parents)
+    res = read_result(out)
+    assert res.skeleton_source is not None and res.skeleton_source.n_joints == expected.n_joints
+    assert res.skeleton_target.n_joints == expected.n_joints
+    info = res.metrics["skeleton_suggested"]
+    assert info["n_joints"] == expected.n_joints and info["file"] == "skeleton_source.tgf"
+    assert any(w.startswith("no skeleton given: one was suggested") for w in res.metrics["warnings"])

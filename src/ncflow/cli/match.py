@@ -14,12 +14,17 @@ def register(sub: argparse._SubParsersAction) -> None:
         description=(
             "Correspondence-free matching and interpolation of two poses of one character. Writes into "
             "--out: deformed_source.ply, p2p_src_to_tgt.txt, p2p_tgt_to_src.txt, map_tgt_to_src.npz, "
-            "frames/, animation.glb, skeleton_target.tgf, skeleton_frames.json, metrics.json."
+            "frames/, animation.glb, skeleton_target.tgf, skeleton_frames.json, metrics.json (and "
+            "skeleton_source.tgf when the source's skeleton was suggested)."
         ),
     )
     p.add_argument("source", help="source mesh (OBJ/PLY/OFF/STL/GLB)")
     p.add_argument("target", help="target mesh (any triangulation and resolution)")
-    p.add_argument("--skeleton", required=True, help="skeleton of the source (TGF, JSON, or glTF/GLB skin)")
+    p.add_argument(
+        "--skeleton",
+        help="skeleton of the source (TGF, JSON, or glTF/GLB skin); without it one is suggested from the source "
+        "(as ncflow skeleton suggest), named in a warning and written as skeleton_source.tgf",
+    )
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--overwrite", action="store_true", help="replace the contract files of an existing non-empty --out")
     p.add_argument("--quiet", action="store_true", help="no progress display")

@@ -11,6 +11,7 @@ What :func:`write_result` writes into ``DIR`` (docs/architecture.md, "Outputs an
 ``animation.glb``          the same frames as one glTF 2.0 binary (morph-target animation)
 ``skeleton_target.tgf``    fitted target skeleton (libigl TGF, 1-based)
 ``skeleton_frames.json``   joint positions per frame, parents, names, times
+``skeleton_source.tgf``    the source skeleton ncflow suggested, when none was given
 ``metrics.json``           the caller's metrics dict, plus ``frame_times``
 =========================  ==================================================================
 
@@ -82,6 +83,7 @@ CONTRACT_FILES = (
     "animation.glb",
     "skeleton_target.tgf",
     "skeleton_frames.json",
+    "skeleton_source.tgf",
     "metrics.json",
     "target.ply",
 )
@@ -111,6 +113,8 @@ class ResultFolder:
         target_vertices, target_faces: the target mesh as given, written as ``target.ply`` so that the
             folder alone serves ``ncflow view``, ``transfer`` and ``rig`` (None: no ``target.ply``).
         animation: the path of ``animation.glb`` of a folder read back (None before it is written).
+        skeleton_source: the source skeleton ncflow suggested because none was given, written as
+            ``skeleton_source.tgf`` (None: a skeleton was given, nothing written).
     """
 
     deformed_source: Float[np.ndarray, "Vs 3"]
@@ -125,6 +129,7 @@ class ResultFolder:
     target_vertices: Float[np.ndarray, "Vt 3"] | None = None
     target_faces: Int[np.ndarray, "Ft 3"] | None = None
     animation: Path | None = None
+    skeleton_source: Skeleton | None = None
 
     @property
     def map_face(self) -> np.ndarray:
@@ -301,6 +306,8 @@ def _write_files(tmp: Path, r: ResultFolder, clip_seconds: float) -> None:
     if r.skeleton_target is not None:
         save_skeleton(tmp / "skeleton_target.tgf", r.skeleton_target)
         write_skeleton_frames_json(tmp / "skeleton_frames.json", r.skeleton_frames, parents, r.joint_names, times)
+    if r.skeleton_source is not None:
+        save_skeleton(tmp / "skeleton_source.tgf", r.skeleton_source)
     atomic_write_text(tmp / "metrics.json", dumps_strict(r.metrics))  # finite: checked
 
 
@@ -443,6 +450,9 @@ def read_result(out_dir: str | os.PathLike, *, check_animation: bool = True) -> 
         target_vertices=target_vertices,
         target_faces=target_faces,
         animation=glb,
+        skeleton_source=load_skeleton(out_dir / "skeleton_source.tgf")
+        if (out_dir / "skeleton_source.tgf").exists()
+        else None,
     )
 
 

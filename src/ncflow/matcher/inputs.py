@@ -32,11 +32,11 @@ def _mesh(mesh) -> Mesh:
     return load_mesh(mesh)
 
 
-def load_inputs(source, target, skeleton) -> tuple[Mesh, Mesh, Skeleton]:
+def load_inputs(source, target, skeleton) -> tuple[Mesh, Mesh, Skeleton | None]:
     """Meshes and skeleton from objects or file paths, validated (meshes given as objects too:
-    :func:`~ncflow.geometry.mesh.validate_mesh`).
+    :func:`~ncflow.geometry.mesh.validate_mesh`); a skeleton of None stays None (one is suggested later).
     """
-    skel = skeleton if isinstance(skeleton, Skeleton) else load_skeleton(skeleton)
+    skel = skeleton if skeleton is None or isinstance(skeleton, Skeleton) else load_skeleton(skeleton)
     return _mesh(source), _mesh(target), skel
 
 

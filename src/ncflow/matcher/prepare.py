@@ -27,6 +27,7 @@ from ncflow.geometry.topology import Topology, mesh_topology
 from ncflow.matcher.inputs import check_inputs, intake, load_inputs
 from ncflow.skeleton import Skeleton
 from ncflow.skeleton.checks import bones_partly_outside, flesh_radius, inside_axial_ranges
+from ncflow.skeleton.suggest import suggest_skeleton
 from ncflow.tissue import centroids_digest, load_tissue_file, tissue_centroids
 
 DTYPE = jnp.float32  # training dtype (DESIGN.md: float32 for training)
@@ -66,6 +67,8 @@ class Setup:
             split, meshes repaired, a mesh far from the origin, a target of somewhat another size or
             wound the other way, joints slightly outside the source surface).
         skinning_weights: the skeleton-driven field's weight mode and why (:func:`skinning_weight_mode`).
+        skeleton_suggested: what :func:`suggested_skeleton` says of a skeleton suggested because none was
+            given, or None.
     """
 
     source: Mesh
@@ -90,6 +93,7 @@ class Setup:
     tissue_seconds: float
     warnings: tuple[str, ...]
     skinning_weights: dict
+    skeleton_suggested: dict | None = None
 
 
 def bone_radii(config, skeleton: Skeleton, flesh: Float[np.ndarray, " B"]) -> Float[np.ndarray, " B"]:
@@ -104,6 +108,23 @@ def bone_radii(config, skeleton: Skeleton, flesh: Float[np.ndarray, " B"]) -> Fl
     if config.flow.skinning and ramp > 0:
         return np.minimum(radii, np.asarray(flesh) / ((1.0 + ramp) * np.asarray(skeleton.bone_lengths)))
     return radii
+
+
+def suggested_skeleton(src, message=lambda text: None) -> tuple[Skeleton, dict]:
+    """A skeleton suggested for the repaired source (:func:`ncflow.skeleton.suggest.suggest_skeleton`) and
+    what ``metrics.json`` says of it (``n_joints``, ``n_leaves``, ``moved_inside``, ``seconds``).
+    """
+    message("no skeleton given: suggesting one from the source ...")
+    t0 = time.perf_counter()
+    found = suggest_skeleton(src.vertices, src.faces, name=f"{src.name or 'source'} (suggested)")
+    info = {
+        "n_joints": found.skeleton.n_joints,
+        "n_leaves": found.n_leaves,
+        "moved_inside": found.moved_inside,
+        "seconds": time.perf_counter() - t0,
+        "file": "skeleton_source.tgf",
+    }
+    return found.skeleton, info
 
 
 def skinning_width(config, skeleton: Skeleton) -> float:
@@ -154,8 +175,17 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Setu
     """
     src, tgt, skel = load_inputs(source, target, skeleton)
     (src_c, src_r, src_note), (tgt_c, tgt_r, tgt_note) = intake(src, "source", config), intake(tgt, "target", config)
+    suggested = None
+    if skel is None:
+        skel, suggested = suggested_skeleton(src_c, message)
     tgt_f, warnings = check_inputs(src_c, tgt_c, skel)
     warnings = src_note + tgt_note + warnings
+    if suggested is not None:
+        warnings.insert(
+            0,
+            f"no skeleton given: one was suggested from the source ({suggested['n_joints']} joints, "
+            f"{suggested['n_leaves']} limb tips; ncflow skeleton suggest), written as skeleton_source.tgf",
+        )
     for w in warnings:
         message(f"warning: {w}")
     norm, work = working_source(src_c, config, message)
@@ -196,6 +226,7 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Setu
         tissue_seconds=tissue_seconds,
         warnings=tuple(warnings),
         skinning_weights=weights,
+        skeleton_suggested=suggested,
     )
 
 

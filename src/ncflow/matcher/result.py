@@ -76,6 +76,7 @@ class MatchResult:
     placement: Placement | None = None
     pivot: np.ndarray | None = None
     state: TrainState | None = dataclasses.field(repr=False, default=None)
+    skeleton_suggested: bool = False
 
     def flow(self, points: np.ndarray, times: np.ndarray | None = None) -> np.ndarray:
         """Move any points (user coordinates, e.g. a higher-resolution source) by the trained field.
@@ -109,6 +110,7 @@ class MatchResult:
             joint_names=list(self.skeleton.names) if self.skeleton.names else None,
             target_vertices=self.target.vertices,
             target_faces=self.target.faces,
+            skeleton_source=self.skeleton if self.skeleton_suggested else None,
         )
 
     def save(self, out_dir: str | os.PathLike, overwrite: bool = False, *, shown=None) -> Path:
@@ -215,6 +217,7 @@ def build_result(
         placement=placed.placement,
         pivot=pivot,
         state=state,
+        skeleton_suggested=setup.skeleton_suggested is not None,
     )
 
 
@@ -322,6 +325,7 @@ def _metrics(setup, placed, trained, programs, targets, cfg, g_ep, g_tr, maps, t
         "source": setup.source.name,
         "target": setup.target.name,
         "skeleton": skeleton.name,
+        "skeleton_suggested": setup.skeleton_suggested,
         "n_source_vertices": setup.source.n_vertices,
         "n_working_vertices": int(setup.working.vertices.shape[0]),
         "n_target_vertices": setup.target.n_vertices,

@@ -58,7 +58,8 @@ def match(
     Args:
         source: the source mesh (or its path).
         target: the target mesh (or its path), of any triangulation and resolution.
-        skeleton: the source's skeleton (or a path: TGF, JSON, glTF).
+        skeleton: the source's skeleton (or a path: TGF, JSON, glTF), or None: one is suggested from the
+            source (:func:`ncflow.skeleton.suggest.suggest_skeleton`) and written as ``skeleton_source.tgf``.
         config: a :class:`~ncflow.config.Config` (default: the ``fast`` preset).
         quiet: no progress display.
         stream: where the progress display goes (default stderr).

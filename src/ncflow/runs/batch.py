@@ -87,15 +87,16 @@ def result_config(config: Config) -> dict:
     return data
 
 
-def match_manifest(source: str, target: str, skeleton: str, config: Config) -> dict:
-    """What a match result is made from: the SHA-256 of its three input files, the ncflow version and
-    :func:`result_config`. Equal manifests mean a finished result can be reused.
+def match_manifest(source: str, target: str, skeleton: str | None, config: Config) -> dict:
+    """What a match result is made from: the SHA-256 of its three input files (the skeleton's None when it
+    is suggested), the ncflow version and :func:`result_config`. Equal manifests mean a finished result can
+    be reused.
     """
     return {
         "ncflow_version": __version__,
         "source_sha256": file_sha256(source),
         "target_sha256": file_sha256(target),
-        "skeleton_sha256": file_sha256(skeleton),
+        "skeleton_sha256": None if skeleton is None else file_sha256(skeleton),
         "config": result_config(config),
     }
 

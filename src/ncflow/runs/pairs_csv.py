@@ -1,6 +1,7 @@
 """The pairs csv that ``ncflow batch`` and ``ncflow benchmark`` read: one row per pair to match.
 
-Columns: ``name, source, target, skeleton`` (``ncflow batch``), plus ``gt`` and optionally
+Columns: ``name, source, target, skeleton`` (``ncflow batch``; an empty skeleton is suggested from the
+source), plus ``gt`` and optionally
 ``gt_format`` and ``dataset`` for ``ncflow benchmark`` (the file :func:`ncflow.synthetic.pairs.write_pairs`
 and ``ncflow make-pairs`` write). Other columns are allowed and ignored. Paths are relative to the
 csv's folder (absolute paths are taken as they are: a csv is a list of inputs the user chose, like a
@@ -46,7 +47,7 @@ class PairSpec:
     name: str
     source: str
     target: str
-    skeleton: str
+    skeleton: str | None  # None (an empty cell): suggested from the source
     gt: str | tuple[str, str] | None
     gt_format: str | None
     dataset: str
@@ -71,7 +72,7 @@ def _parse_row(row: dict, line: int, base: Path, path: Path, ground_truth: bool)
     required = PAIR_COLUMNS + (GT_COLUMNS if ground_truth else ())
     values = {k: (row.get(k) or "").strip() for k in PAIR_COLUMNS + GT_COLUMNS + OPTIONAL_COLUMNS}
     for key in required:
-        if not values[key]:
+        if not values[key] and key != "skeleton":
             raise InputError(f"{where}: empty {key!r}", path)
     name = values["name"]
     if not _NAME_RE.match(name):
@@ -80,7 +81,7 @@ def _parse_row(row: dict, line: int, base: Path, path: Path, ground_truth: bool)
             "letter or digit (it names a folder)",
             path,
         )
-    files = {k: _resolve(base, values[k]) for k in ("source", "target", "skeleton")}
+    files = {k: _resolve(base, values[k]) for k in ("source", "target", "skeleton") if values[k]}
     gt: str | tuple[str, str] | None = None
     fmt = values["gt_format"] or None
     if ground_truth:
@@ -99,7 +100,8 @@ def _parse_row(row: dict, line: int, base: Path, path: Path, ground_truth: bool)
         files.update({f"gt{i or ''}": g for i, g in enumerate(gts)})
     for key, file in files.items():
         _check_file(file, key.rstrip("0123456789") if key.startswith("gt") else key, where, path)
-    return PairSpec(name, files["source"], files["target"], files["skeleton"], gt, fmt, values["dataset"] or "default")
+    skeleton = files.get("skeleton")
+    return PairSpec(name, files["source"], files["target"], skeleton, gt, fmt, values["dataset"] or "default")
 
 
 def read_pairs_csv(path: str | os.PathLike, ground_truth: bool = True) -> list[PairSpec]:
