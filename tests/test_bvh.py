@@ -137,3 +137,16 @@ def test_refused(tmp_path, change, message):
     with pytest.raises(ResultError, match=message):
         write_bvh(tmp_path / "x.bvh", **args)
     assert not (tmp_path / "x.bvh").exists()
+
+
+def test_a_deep_chain_is_written_in_linear_size(tmp_path):
+    """A chain of 5,000 joints (deeper than Python's recursion limit): every joint written, one motion
+    value per channel, and the file stays linear in size (indentation stops growing)."""
+    nj = 5000
+    bind = np.column_stack([np.zeros(nj), np.arange(nj, dtype=float), np.zeros(nj)])
+    quats = np.tile([0.0, 0.0, 0.0, 1.0], (2, nj, 1))
+    path = write_bvh(tmp_path / "chain.bvh", bind, np.arange(nj) - 1, [None] * nj, quats, np.zeros((2, 3)), 0.1)
+    lines = path.read_text().splitlines()
+    assert sum(line.lstrip().startswith("JOINT ") for line in lines) == nj - 1
+    assert len(lines[-1].split()) == 6 + 3 * (nj - 1)
+    assert path.stat().st_size < 600 * nj  # about 400 bytes a joint; indented in full, about 125 MB

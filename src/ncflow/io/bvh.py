@@ -35,6 +35,11 @@ ROTATION_ORDER = "ZXY"
 """The Euler order of every joint's rotation channels (intrinsic; the channels list it in this order)."""
 
 
+MAX_INDENT = 32
+"""Indentation stops growing at this depth (whitespace means nothing to a reader; a 10,000-joint chain
+indented in full would be quadratic in size)."""
+
+
 def bvh_names(names: list[str | None] | tuple[str | None, ...]) -> list[str]:
     """Joint names a BVH reader takes: runs of whitespace, braces and other symbols become ``_``; missing
     names become ``joint{j}``; duplicates get suffixes (``name_2``).
@@ -91,23 +96,26 @@ def write_bvh(
         children[int(par[j])].append(j)
 
     lines = ["HIERARCHY"]
-
-    def joint(j: int, depth: int) -> None:
-        pad = "  " * depth
+    rot = " ".join(f"{axis}rotation" for axis in ROTATION_ORDER)
+    order: list[int] = []  # joints as the hierarchy lists them: their channels' order in a motion line
+    depth = np.zeros(nj, np.int64)
+    stack: list[tuple[int, bool]] = [(0, False)]  # (joint, close it): a stack, so any depth is written
+    while stack:
+        j, close = stack.pop()
+        pad = "  " * min(int(depth[j]), MAX_INDENT)
+        if close:
+            if not children[j]:
+                lines.extend([f"{pad}  End Site", f"{pad}  {{", f"{pad}    OFFSET 0 0 0", f"{pad}  }}"])
+            lines.append(f"{pad}}}")
+            continue
+        order.append(j)
         offset = np.zeros(3) if j == 0 else bind[j] - bind[par[j]]
-        lines.append(f"{pad}{'ROOT' if j == 0 else 'JOINT'} {safe[j]}")
-        lines.append(f"{pad}{{")
-        lines.append(f"{pad}  OFFSET {_numbers(offset)}")
-        rot = " ".join(f"{axis}rotation" for axis in ROTATION_ORDER)
+        lines += [f"{pad}{'ROOT' if j == 0 else 'JOINT'} {safe[j]}", f"{pad}{{", f"{pad}  OFFSET {_numbers(offset)}"]
         lines.append(f"{pad}  CHANNELS 6 Xposition Yposition Zposition {rot}" if j == 0 else f"{pad}  CHANNELS 3 {rot}")
-        for c in children[j]:
-            joint(c, depth + 1)
-        if not children[j]:
-            lines.extend([f"{pad}  End Site", f"{pad}  {{", f"{pad}    OFFSET 0 0 0", f"{pad}  }}"])
-        lines.append(f"{pad}}}")
+        depth[children[j]] = depth[j] + 1
+        stack.append((j, True))
+        stack.extend((c, False) for c in reversed(children[j]))
 
-    joint(0, 0)
-    order = _depth_first(children)
     euler = Rotation.from_quat(quats.reshape(-1, 4)).as_euler(ROTATION_ORDER, degrees=True).reshape(k, nj, 3)
     lines += ["MOTION", f"Frames: {k}", f"Frame Time: {frame_time:.9g}"]
     for i in range(k):
@@ -116,16 +124,6 @@ def write_bvh(
     out = Path(path)
     out.write_text("\n".join(lines) + "\n", encoding="ascii")
     return out
-
-
-def _depth_first(children: list[list[int]]) -> list[int]:
-    """Joints in the order the hierarchy lists them (their channels' order in a motion line)."""
-    order, stack = [], [0]
-    while stack:
-        j = stack.pop()
-        order.append(j)
-        stack.extend(reversed(children[j]))
-    return order
 
 
 def _numbers(values) -> str:

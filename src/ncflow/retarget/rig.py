@@ -262,20 +262,14 @@ def rig_result(
     """
     start = time.perf_counter()
     out = Path(out_glb)
-    if out.suffix.lower() != ".glb":
-        raise InputError("the rig is written as a binary glTF: the output must end with .glb", out)
-    if (out.exists() or out.is_symlink()) and not overwrite:
-        raise InputError("exists (pass overwrite=True / --overwrite to replace it)", out)
-    real = check_output_file(out, option="--out")
+    real = _output_file(out, ".glb", "the rig is written as a binary glTF", "--out", overwrite)
     bvh_real = None
     if bvh is not None:
         if not animation:
             raise InputError("a BVH holds the motion: it cannot be written without the animation", bvh)
-        if Path(bvh).suffix.lower() != ".bvh":
-            raise InputError("the skeleton motion is written as Biovision Hierarchy: the file must end with .bvh", bvh)
-        if (Path(bvh).exists() or Path(bvh).is_symlink()) and not overwrite:
-            raise InputError("exists (pass overwrite=True / --overwrite to replace it)", bvh)
-        bvh_real = check_output_file(bvh, option="--bvh")
+        bvh_real = _output_file(
+            bvh, ".bvh", "the skeleton motion is written as Biovision Hierarchy", "--bvh", overwrite
+        )
         if bvh_real == real:
             raise InputError("the BVH and the GLB must be two files", bvh)
     if not (math.isfinite(clip_seconds) and clip_seconds > 0):
@@ -332,8 +326,10 @@ def rig_result(
         clip = {"key_times": keys, "rotations": quats, "root_translations": sk_frames[:, 0]}
     with atomic_path(real) as tmp, contextlib.ExitStack() as more:
         if bvh_real is not None:
-            frame_time = float(clip["key_times"][-1] / max(len(clip["key_times"]) - 1, 1)) or clip_seconds
-            write_bvh(more.enter_context(atomic_path(bvh_real)), bind, parents, names, **_bvh_motion(clip, frame_time))
+            keys = clip["key_times"]
+            frame_time = float(keys[-1] / (len(keys) - 1)) if len(keys) > 1 and keys[-1] > 0 else clip_seconds
+            bvh_tmp = more.enter_context(atomic_path(bvh_real))
+            write_bvh(bvh_tmp, bind, parents, names, clip["rotations"], clip["root_translations"], frame_time)
         write_rig_glb(
             tmp,
             vertices=tv,
@@ -360,8 +356,15 @@ def rig_result(
     )
 
 
-def _bvh_motion(clip: dict, frame_time: float) -> dict:
-    return {"rotations": clip["rotations"], "root_positions": clip["root_translations"], "frame_time": frame_time}
+def _output_file(path: str | os.PathLike, suffix: str, written_as: str, option: str, overwrite: bool) -> Path:
+    """An output file checked before any work: its suffix, an existing file without ``overwrite``, and
+    :func:`~ncflow.io.atomic.check_output_file`; returned resolved.
+    """
+    if Path(path).suffix.lower() != suffix:
+        raise InputError(f"{written_as}: the output must end with {suffix}", path)
+    if (Path(path).exists() or Path(path).is_symlink()) and not overwrite:
+        raise InputError("exists (pass overwrite=True / --overwrite to replace it)", path)
+    return check_output_file(path, option=option)
 
 
 def _check_bind(path: Path, target: np.ndarray, diag: float) -> float:
