@@ -37,8 +37,9 @@ from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 
 from ncflow.errors import InputError
 from ncflow.geometry.closest import closest_points_on_surface
+from ncflow.geometry.mesh import face_areas
 from ncflow.geometry.skeleton import Skeleton
-from ncflow.geometry.topology import vertex_components
+from ncflow.geometry.topology import mesh_topology, vertex_components
 from ncflow.geometry.winding import signed_volume, winding_numbers
 
 N_SOURCES = 12
@@ -103,30 +104,28 @@ def reeb_tree(
     (N, 3), node values of ``f`` (N,) and the adjacency (one set of neighbours per node).
     """
     v, fc = np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
-    edges = np.concatenate([fc[:, [0, 1]], fc[:, [1, 2]], fc[:, [2, 0]]])
+    topo = mesh_topology(fc, v.shape[0])
     lo, hi = float(f.min()), float(f.max())
-    step = float(np.mean(np.abs(f[edges[:, 0]] - f[edges[:, 1]])))
+    step = float(np.mean(np.abs(f[topo.edges[:, 0]] - f[topo.edges[:, 1]])))
     n_bands = max(4, int((hi - lo) / max(BAND_EDGES * step, 1e-30)))
     face_f = f[fc].mean(1)
     band = np.minimum(((face_f - lo) / max(hi - lo, 1e-30) * n_bands).astype(np.int64), n_bands - 1)
     nf = fc.shape[0]
-    key = np.sort(edges, axis=1)
-    owner = np.tile(np.arange(nf), 3)
-    order = np.lexsort((key[:, 1], key[:, 0]))
-    same_edge = np.all(key[order][1:] == key[order][:-1], axis=1)
-    fa, fb = owner[order][:-1][same_edge], owner[order][1:][same_edge]
+    pairs = np.concatenate([topo.edge_faces[:, [k, k + 1]] for k in range(3)])  # faces sharing an edge
+    pairs = pairs[np.all(pairs >= 0, axis=1)]
+    fa, fb = pairs[:, 0], pairs[:, 1]
     inside_band = band[fa] == band[fb]
     links = sp.coo_matrix((np.ones(inside_band.sum()), (fa[inside_band], fb[inside_band])), shape=(nf, nf))
     n, label = connected_components(links, directed=False)
-    area = 0.5 * np.linalg.norm(np.cross(v[fc[:, 1]] - v[fc[:, 0]], v[fc[:, 2]] - v[fc[:, 0]]), axis=1) + 1e-30
+    area = face_areas(v, fc) + 1e-30
     weight = np.bincount(label, weights=area, minlength=n)
     centroids = np.stack([np.bincount(label, weights=area * c, minlength=n) for c in v[fc].mean(1).T], 1)
     centroids /= weight[:, None]
     values = np.bincount(label, weights=area * face_f, minlength=n) / weight
-    a, b = label[fa], label[fb]
-    cross = a != b
-    length = np.linalg.norm(centroids[a[cross]] - centroids[b[cross]], axis=1) + 1e-12
-    graph = sp.coo_matrix((length, (a[cross], b[cross])), shape=(n, n)).tocsr()
+    joined = np.unique(np.sort(np.stack([label[fa], label[fb]], axis=1), axis=1), axis=0)
+    a, b = joined[joined[:, 0] != joined[:, 1]].T  # each pair of neighbouring pieces once
+    length = np.linalg.norm(centroids[a] - centroids[b], axis=1) + 1e-12
+    graph = sp.coo_matrix((length, (a, b)), shape=(n, n)).tocsr()
     tree = minimum_spanning_tree(graph.maximum(graph.T)).tocoo()
     adjacency: list[set[int]] = [set() for _ in range(n)]
     for i, j in zip(tree.row.tolist(), tree.col.tolist(), strict=True):
@@ -170,17 +169,23 @@ def prune_branches(adjacency: list[set[int]], centroids: np.ndarray, shortest: f
 
 
 def _douglas_peucker(points: np.ndarray, tolerance: float) -> list[int]:
-    """Indices of the points that a Douglas–Peucker simplification at ``tolerance`` keeps (ends included)."""
-    if points.shape[0] < 3:
-        return list(range(points.shape[0]))
-    a, ab = points[0], points[-1] - points[0]
-    ab = ab / max(np.linalg.norm(ab), 1e-30)
-    dist = np.linalg.norm(np.cross(points - a, ab), axis=1)
-    i = int(np.argmax(dist))
-    if dist[i] <= tolerance:
-        return [0, points.shape[0] - 1]
-    left, right = _douglas_peucker(points[: i + 1], tolerance), _douglas_peucker(points[i:], tolerance)
-    return left[:-1] + [k + i for k in right]
+    """Indices of the points that a Douglas–Peucker simplification at ``tolerance`` keeps (ends included);
+    a stack of spans, not recursion, so that a chain of any length is simplified.
+    """
+    last = points.shape[0] - 1
+    keep, spans = {0, last}, [(0, last)]
+    while spans:
+        i, j = spans.pop()
+        if j - i < 2:
+            continue
+        ab = points[j] - points[i]
+        ab = ab / max(np.linalg.norm(ab), 1e-30)
+        dist = np.linalg.norm(np.cross(points[i + 1 : j] - points[i], ab), axis=1)
+        k = i + 1 + int(np.argmax(dist))
+        if dist[k - i - 1] > tolerance:
+            keep.add(k)
+            spans += [(i, k), (k, j)]
+    return sorted(keep)
 
 
 def _chains(adjacency: list[set[int]], root: int) -> list[list[int]]:
@@ -251,7 +256,7 @@ def _move_inside(joints: np.ndarray, vertices: np.ndarray, faces: np.ndarray, di
 def _largest_piece(v: np.ndarray, fc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The vertices and faces of the connected piece of largest area, reindexed."""
     label = vertex_components(fc, v.shape[0])
-    area = 0.5 * np.linalg.norm(np.cross(v[fc[:, 1]] - v[fc[:, 0]], v[fc[:, 2]] - v[fc[:, 0]]), axis=1)
+    area = face_areas(v, fc)
     piece = label[fc[:, 0]]
     if fc.shape[0] == 0 or np.all(piece == piece[0]):
         return v, fc
