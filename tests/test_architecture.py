@@ -50,6 +50,7 @@ LAYERS = {
     "view": 6,
     "retarget": 6,
     "runs": 6,
+    "track": 6,
     "cli": 7,
 }
 ROOT = "ncflow"  # the root package, ncflow/__init__.py
@@ -67,6 +68,8 @@ SAME_LAYER_ALLOWED = {
     "dual-quaternion kinematics",
     ("losses", "flow"): "the trajectory bone constraint is evaluated on the integrator's time grid "
     "(flow.integrate.time_grid), one definition of the grid",
+    ("track", "retarget"): "a tracked sequence's animation recovers joint rotations and skin weights as the rig "
+    "does (retarget.rig.joint_motion, retarget.weights), one definition of each",
     ("losses", "measures"): "the distortion terms use the guarded normalisation of the measures "
     "(measures.normal_cycles.safe_normalize), one definition of the guard",
 }

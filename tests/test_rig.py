@@ -27,7 +27,7 @@ import pytest
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from gltf_checks import assert_valid_gltf
+from gltf_checks import accessor, assert_valid_gltf, node_world, skin_arrays
 from ncflow.cli import main
 from ncflow.errors import InputError
 from ncflow.geometry.barycentric import surface_points
@@ -117,58 +117,6 @@ def rigged(case):
 
 
 # ----------------------------------------------------------------------------------------------
-# reading a GLB back with pygltflib
-
-
-_DTYPES = {5121: np.uint8, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
-_WIDTHS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
-
-
-def _accessor(gltf: pygltflib.GLTF2, index: int) -> np.ndarray:
-    acc = gltf.accessors[index]
-    view = gltf.bufferViews[acc.bufferView]
-    dtype = np.dtype(_DTYPES[acc.componentType])
-    width = _WIDTHS[acc.type]
-    start = (view.byteOffset or 0) + (acc.byteOffset or 0)
-    assert view.byteStride is None and start % 4 == 0
-    assert (acc.byteOffset or 0) + acc.count * width * dtype.itemsize <= view.byteLength
-    data = np.frombuffer(gltf.binary_blob(), dtype=dtype, count=acc.count * width, offset=start)
-    return data.reshape(acc.count, width)
-
-
-def _node_world(gltf: pygltflib.GLTF2) -> np.ndarray:
-    """World transforms of all nodes from their TRS, composed down the children lists."""
-    n = len(gltf.nodes)
-    local = np.tile(np.eye(4), (n, 1, 1))
-    for i, node in enumerate(gltf.nodes):
-        r = Rotation.from_quat(node.rotation or [0, 0, 0, 1]).as_matrix()
-        local[i, :3, :3] = r * np.asarray(node.scale or [1, 1, 1])
-        local[i, :3, 3] = node.translation or [0, 0, 0]
-    world = np.full((n, 4, 4), np.nan)
-
-    def visit(i, parent):
-        world[i] = parent @ local[i]
-        for c in gltf.nodes[i].children or []:
-            visit(c, world[i])
-
-    for i in gltf.scenes[gltf.scene].nodes:
-        visit(i, np.eye(4))
-    return world
-
-
-def _skin_arrays(path):
-    gltf = pygltflib.GLTF2().load_binary(str(path))
-    prim = gltf.meshes[0].primitives[0]
-    return gltf, {
-        "position": _accessor(gltf, prim.attributes.POSITION).astype(np.float64),
-        "joints": _accessor(gltf, prim.attributes.JOINTS_0).astype(np.int64),
-        "weights": _accessor(gltf, prim.attributes.WEIGHTS_0).astype(np.float64),
-        "indices": _accessor(gltf, prim.indices).reshape(-1, 3),
-        "ibm": _accessor(gltf, gltf.skins[0].inverseBindMatrices).reshape(-1, 4, 4).transpose(0, 2, 1),
-    }
-
-
-# ----------------------------------------------------------------------------------------------
 # the rig
 
 
@@ -177,13 +125,13 @@ def test_weights_sum_to_one_and_bind_pose_is_the_target(case, rigged):
     target = res.target_vertices
     diag = np.linalg.norm(np.ptp(target, axis=0))
     for which, report in rigged.items():
-        gltf, a = _skin_arrays(report.path)
+        gltf, a = skin_arrays(report.path)
         assert report.weights_from == ("gltf skin" if which == "skin" else "skeleton")
         np.testing.assert_allclose(a["weights"].sum(1), 1.0, atol=1e-6)
         assert np.all(a["weights"] >= 0) and a["joints"].max() < len(gltf.skins[0].joints)
         np.testing.assert_array_equal(a["indices"], res.target_faces)
         # skinned through the node hierarchy and the inverse bind matrices, by hand
-        world = _node_world(gltf)[gltf.skins[0].joints]
+        world = node_world(gltf)[gltf.skins[0].joints]
         dense = np.zeros((a["position"].shape[0], world.shape[0]))
         np.add.at(dense, (np.repeat(np.arange(dense.shape[0]), 4), a["joints"].ravel()), a["weights"].ravel())
         posed = linear_blend_skinning(a["position"], dense, world @ a["ibm"])
@@ -203,17 +151,17 @@ def test_accessor_bounds_and_layout(rigged):
     gltf = pygltflib.GLTF2().load_binary(str(rigged["skin"].path))
     assert gltf.skins[0].skeleton == 0 and gltf.nodes[gltf.scenes[0].nodes[0]].name == "pelvis"
     for i, acc in enumerate(gltf.accessors):
-        data = _accessor(gltf, i)
+        data = accessor(gltf, i)
         assert acc.min is not None and acc.max is not None, i
         assert list(data.min(0)) == acc.min and list(data.max(0)) == acc.max, i
     prim = gltf.meshes[0].primitives[0]
     assert gltf.bufferViews[gltf.accessors[prim.attributes.POSITION].bufferView].target == pygltflib.ARRAY_BUFFER
     assert gltf.bufferViews[gltf.accessors[prim.indices].bufferView].target == pygltflib.ELEMENT_ARRAY_BUFFER
     assert prim.material == 0 and gltf.materials[0].doubleSided
-    normals = _accessor(gltf, prim.attributes.NORMAL)
+    normals = accessor(gltf, prim.attributes.NORMAL)
     np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-6)
     # column-major inverse bind matrices: the translation in elements 12..14
-    ibm = _accessor(gltf, gltf.skins[0].inverseBindMatrices)
+    ibm = accessor(gltf, gltf.skins[0].inverseBindMatrices)
     np.testing.assert_array_equal(ibm[:, [3, 7, 11]], 0.0)
     np.testing.assert_array_equal(ibm[:, 15], 1.0)
     assert len(gltf.binary_blob()) % 4 == 0

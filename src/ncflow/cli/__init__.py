@@ -25,6 +25,7 @@ from ncflow.cli import (
     pose,
     rig,
     skeleton,
+    track,
     transfer,
     view,
 )
@@ -56,6 +57,7 @@ COMMANDS = (
     pose,
     rig,
     skeleton,
+    track,
     transfer,
     view,
 )

@@ -18,7 +18,11 @@ def register(sub: argparse._SubParsersAction) -> None:
             "decimated. The target is read from RESULT_DIR/target.ply (or --target for older results)."
         ),
     )
-    p.add_argument("result_dir", metavar="RESULT_DIR", help="folder written by ncflow match")
+    p.add_argument(
+        "result_dir",
+        metavar="RESULT_DIR",
+        help="folder written by ncflow match, or by ncflow track (its registered frames are played)",
+    )
     p.add_argument("--out", metavar="FILE", help="the HTML file (default RESULT_DIR/view.html)")
     p.add_argument(
         "--gt",
@@ -52,10 +56,13 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ncflow.cli.options import MiB, check_int, gt_spec, output_file
+    from ncflow.errors import InputError
+    from ncflow.track.folder import is_track_folder, track_as_result
     from ncflow.view.page import (
         DEFAULT_MAX_DISPLAY_FRAMES,
         DEFAULT_MAX_DISPLAY_VERTICES,
         check_view_output,
+        write_page,
         write_view,
     )
 
@@ -65,6 +72,18 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.result_dir) / "view.html" if args.out is None else Path(args.out)
     output_file(out, need_bytes=16 * MiB, option="--out")
     check_view_output(out, args.overwrite)
+    if is_track_folder(args.result_dir):  # a sequence of ncflow track: its registered frames, played
+        if args.gt or args.target:
+            raise InputError("--gt and --target are for a match result, not a track folder", args.result_dir)
+        path = write_page(
+            track_as_result(args.result_dir),
+            out,
+            max_display_vertices=args.max_vertices or DEFAULT_MAX_DISPLAY_VERTICES,
+            max_display_frames=args.max_frames or DEFAULT_MAX_DISPLAY_FRAMES,
+            title=args.title if args.title is not None else Path(args.result_dir).resolve().name,
+        )
+        print(f"wrote {path} ({os.path.getsize(path) / 2**20:.1f} MiB); open it in a browser (works offline)")
+        return 0
     path = write_view(
         args.result_dir,
         out,

@@ -20,7 +20,14 @@ from ncflow.config.settings import (
     TissueConfig,
     WeightsConfig,
 )
-from ncflow.config.transforms import ablation_config, config_to_dict, scale_steps, with_metric, with_options
+from ncflow.config.transforms import (
+    ablation_config,
+    config_to_dict,
+    result_config,
+    scale_steps,
+    with_metric,
+    with_options,
+)
 
 __all__ = [
     "METRICS",
@@ -41,6 +48,7 @@ __all__ = [
     "config_to_dict",
     "load_config",
     "preset",
+    "result_config",
     "quote",
     "scale_steps",
     "validate_config",

@@ -5,16 +5,33 @@ line as Python keywords, and the configuration as a plain dict.
 from __future__ import annotations
 
 import dataclasses
+import json
+import os
 
 from ncflow.config.checks import validate_config
 from ncflow.config.quoting import quote
-from ncflow.config.settings import METRICS, Config
+from ncflow.config.settings import METRICS, RESULT_NEUTRAL, Config
 from ncflow.errors import InputError
+from ncflow.io.files import file_sha256
 
 
 def config_to_dict(config: Config) -> dict:
     """Plain nested dict (JSON/TOML-ready) of a configuration."""
     return dataclasses.asdict(config)
+
+
+def result_config(config: Config) -> dict:
+    """The configuration as far as it can change a result: without the settings that never do
+    (:data:`ncflow.config.settings.RESULT_NEUTRAL`: a cache folder, compiling ahead), ``tissue.file`` given
+    by its content (``sha256:<hex>``) rather than its path.
+    """
+    data = json.loads(json.dumps(config_to_dict(config)))
+    for name in RESULT_NEUTRAL:
+        data.pop(name, None)
+    file = config.tissue.file
+    if file:
+        data["tissue"]["file"] = f"sha256:{file_sha256(file)}" if os.path.isfile(file) else str(file)
+    return data
 
 
 def with_metric(config: Config, metric: str) -> Config:

@@ -19,6 +19,7 @@ before anything large is allocated:
 
 from __future__ import annotations
 
+import hashlib
 import math
 import os
 import re
@@ -46,6 +47,15 @@ def dtype_text(dtype) -> str:
     runs to thousands of characters).
     """
     return short_repr(str(dtype), 40)
+
+
+def file_sha256(path: str | os.PathLike) -> str:
+    """SHA-256 of a file's bytes (hex)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
 
 
 def check_regular_file(path: str | os.PathLike, what: str) -> Path:

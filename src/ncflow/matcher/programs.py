@@ -26,7 +26,7 @@ from ncflow.jit.ahead import CompileAhead
 from ncflow.jit.buckets import pad_points
 from ncflow.jit.cache import jit_run_once
 from ncflow.losses import bone_constraints
-from ncflow.matcher.objective import Arrays
+from ncflow.matcher.objective import Arrays, Settings
 from ncflow.matcher.place import searches_pose
 from ncflow.matcher.pose_fit import constraint_fit_weights, fit_pose
 from ncflow.matcher.prepare import DTYPE, Setup
@@ -168,3 +168,27 @@ def build_programs(setup: Setup, config, keys) -> Programs:
 
     ahead = CompileAhead([("training", compile_training), ("outputs", compile_outputs)])
     return Programs(arrays, stages, training, outputs, ahead)
+
+
+def check_programs(programs: Programs, setup: Setup, config) -> None:
+    """Raise ValueError unless ``programs`` were built for a problem like ``setup`` with ``config``'s stages
+    (same working source, skeleton and bone-weight mode): what reusing them needs.
+    """
+    arrays = Arrays.from_problem(setup)
+    stages = tuple(build_stages(config))
+    metrics = tuple(dict.fromkeys(st.metric for st in stages))
+    old, new = programs.arrays.skeleton, arrays.skeleton
+    same = (
+        programs.stages == stages
+        and programs.training.settings
+        == Settings.from_config(config, metrics, arrays.n_edges, setup.centroids.shape[0])
+        and programs.arrays.n_vertices == arrays.n_vertices
+        and programs.arrays.n_edges == arrays.n_edges
+        and np.array_equal(old.positions, new.positions)
+        and np.array_equal(old.parents, new.parents)
+        and np.array_equal(np.asarray(programs.arrays.source), np.asarray(arrays.source))
+        and np.array_equal(np.asarray(programs.arrays.centroids), np.asarray(arrays.centroids))
+        and programs.training.weight_mode == setup.skinning_weights["mode"]
+    )
+    if not same:
+        raise ValueError("the programs were built for another source, skeleton or configuration")

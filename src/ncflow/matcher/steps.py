@@ -20,6 +20,7 @@ plain steps a caller can run one by one and re-enter.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import jax
@@ -27,15 +28,27 @@ import jax
 from ncflow.config import Config, preset, validate_config
 from ncflow.jit.cache import configure_compilation_cache
 from ncflow.matcher.place import Placed, place
+from ncflow.matcher.placement import Placement
 from ncflow.matcher.prepare import prepare
-from ncflow.matcher.programs import build_programs
+from ncflow.matcher.programs import Programs, build_programs, check_programs
 from ncflow.matcher.progress import Progress
 from ncflow.matcher.result import MatchResult
 from ncflow.matcher.result import build_result as build_result
 from ncflow.matcher.targets import target_measures
-from ncflow.matcher.train import TrainingError, train
+from ncflow.matcher.train import TrainingError, TrainState, train
 
-__all__ = ["Matcher", "MatchResult", "TrainingError", "match", "run_keys"]
+__all__ = ["Matcher", "MatchResult", "TrainingError", "WarmStart", "match", "run_keys"]
+
+
+@dataclasses.dataclass(frozen=True)
+class WarmStart:
+    """What a match may start from besides a whole earlier result: a trained state and the placement of
+    the new target (``ncflow track`` hands each frame the previous frame's state and a placement followed
+    onto the new frame).
+    """
+
+    state: TrainState
+    placement: Placement
 
 
 def run_keys(seed: int) -> tuple:
@@ -51,7 +64,7 @@ def match(
     *,
     quiet: bool = False,
     stream=None,
-    start: MatchResult | None = None,
+    start: MatchResult | WarmStart | None = None,
 ) -> MatchResult:
     """Match ``source`` to ``target`` with the source's ``skeleton`` (meshes/skeleton or file paths).
 
@@ -65,7 +78,7 @@ def match(
         stream: where the progress display goes (default stderr).
         start: an earlier result of the same source and skeleton to go on from (a warm start): its
             placement and trained pose replace the placement and the pose search, and the training
-            starts from its networks and multipliers.
+            starts from its networks and multipliers; or a :class:`WarmStart` (a state and a placement).
 
     Returns:
         a :class:`~ncflow.matcher.result.MatchResult` (``.save(out_dir)`` writes the output contract).
@@ -85,6 +98,10 @@ class Matcher:
     """The steps of :func:`match` for one (source, target, skeleton): the constructor runs steps 1–4
     (the problem prepared, its programs compiling, the target placed and measured), :meth:`run` steps 5–6.
 
+    ``programs``: the compiled programs of an earlier matcher of the same source, skeleton and
+    configuration (its :attr:`programs`; they depend on nothing of the target), used instead of
+    building and compiling them again — a sequence's frames share them.
+
     Attributes:
         config: the validated configuration.
         setup, programs, placed, targets: what steps 1–4 made.
@@ -100,7 +117,8 @@ class Matcher:
         *,
         quiet: bool = False,
         stream=None,
-        start: MatchResult | None = None,
+        start: MatchResult | WarmStart | None = None,
+        programs: Programs | None = None,
     ):
         t0 = time.perf_counter()
         self.config = validate_config(config or preset("fast"))
@@ -109,7 +127,9 @@ class Matcher:
         self.keys = run_keys(self.config.seed)  # initialisation, training, outputs
         self.start = start
         self.setup = prepare(source, target, skeleton, self.config, message=self.progress.message)
-        self.programs = build_programs(self.setup, self.config, self.keys)
+        self.programs = build_programs(self.setup, self.config, self.keys) if programs is None else programs
+        if programs is not None:
+            check_programs(programs, self.setup, self.config)
         if start is None:
             self.placed = place(self.setup, self.config, message=self.progress.message)
         else:

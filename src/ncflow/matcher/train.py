@@ -156,6 +156,7 @@ class TrainingPrograms:
     optimizer: optax.GradientTransformation
     settings: Settings
     step: Callable
+    weight_mode: str = "current"
 
 
 def training_programs(
@@ -171,7 +172,7 @@ def training_programs(
     metrics = tuple(dict.fromkeys(st.metric for st in stages))
     settings = Settings.from_config(cfg, metrics, arrays.n_edges, n_centroids)
     step = make_step(arrays, settings, optimizer, cfg.constraints)
-    return TrainingPrograms(jit_run_once(initial_params), optimizer, settings, step)
+    return TrainingPrograms(jit_run_once(initial_params), optimizer, settings, step, weight_mode)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -43,10 +43,10 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ncflow import __version__
-from ncflow.config import RESULT_NEUTRAL, Config, config_to_dict
+from ncflow.config import Config, result_config
 from ncflow.errors import InputError
 from ncflow.io.atomic import atomic_write_text
-from ncflow.io.files import read_npz_arrays
+from ncflow.io.files import file_sha256, read_npz_arrays
 from ncflow.io.meshes import load_mesh
 from ncflow.matcher.inputs import intake
 from ncflow.matcher.prepare import source_tissue, uses_tissue, working_source
@@ -62,29 +62,6 @@ SUMMARY_FILE = "batch.json"
 
 # ----------------------------------------------------------------------------------------------
 # Manifests
-
-
-def file_sha256(path: str | os.PathLike) -> str:
-    """SHA-256 of a file's bytes (hex)."""
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
-def result_config(config: Config) -> dict:
-    """The configuration as far as it can change a result: without the settings that never do
-    (:data:`ncflow.config.RESULT_NEUTRAL`: a cache folder, compiling ahead), ``tissue.file`` given
-    by its content (``sha256:<hex>``) rather than its path.
-    """
-    data = json.loads(json.dumps(config_to_dict(config)))
-    for name in RESULT_NEUTRAL:
-        data.pop(name, None)
-    file = config.tissue.file
-    if file:
-        data["tissue"]["file"] = f"sha256:{file_sha256(file)}" if os.path.isfile(file) else str(file)
-    return data
 
 
 def match_manifest(source: str, target: str, skeleton: str | None, config: Config) -> dict:

@@ -56,6 +56,7 @@ __all__ = [
     "render_page",
     "view_data",
     "viewer_script",
+    "write_page",
     "write_view",
 ]
 
@@ -432,12 +433,37 @@ def write_view(
         if truth.n_target != tmesh.n_vertices:
             raise InputError(f"is for {truth.n_target} target vertices, the target has {tmesh.n_vertices}", truth.name)
         errors = geodesic_error_map(source, result.map_face, result.map_bary, truth, method=geodesic_method)
+    return write_page(
+        result,
+        out,
+        errors=errors,
+        max_display_vertices=max_display_vertices,
+        max_display_frames=max_display_frames,
+        title=title if title is not None else result_dir.resolve().name,
+    )
+
+
+def write_page(
+    result: ResultFolder,
+    out: Path,
+    *,
+    errors: Float[np.ndarray, " Vt"] | None = None,
+    max_display_vertices: int = DEFAULT_MAX_DISPLAY_VERTICES,
+    max_display_frames: int = DEFAULT_MAX_DISPLAY_FRAMES,
+    title: str = "",
+) -> Path:
+    """Write the page of a loaded result (its ``target_vertices`` / ``target_faces`` set; ``out`` checked
+    by :func:`check_view_output`), atomically; return ``out``. ``ncflow track`` folders come here too, as a
+    :class:`~ncflow.io.result.ResultFolder` of the registered frames (:func:`ncflow.track.folder.track_as_result`).
+    """
+    _check_budget(max_display_vertices, "the vertex budget (--max-vertices)", 100)
+    _check_budget(max_display_frames, "the frame budget (--max-frames)", 2)
     data = view_data(
         result,
         errors=errors,
         max_display_vertices=max_display_vertices,
         max_display_frames=max_display_frames,
-        title=title if title is not None else result_dir.resolve().name,
+        title=title,
     )
     page = render_page(data, viewer_script())
     out.parent.mkdir(parents=True, exist_ok=True)

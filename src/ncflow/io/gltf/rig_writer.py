@@ -18,6 +18,10 @@ as a rigged character:
 * **Animation** (optional): one clip with a LINEAR sampler per joint driving its node's
   ``rotation`` (quaternions x, y, z, w; consecutive keys on the same hemisphere) and one driving
   the root's ``translation``.
+* **Morph targets** (optional, with the animation): one ``POSITION`` target per key, the correction in
+  the bind pose that makes the skinned mesh at that key exact (``ncflow track``: the registered
+  shape of each frame), and one LINEAR sampler driving the mesh node's ``weights``: target k has
+  weight 1 at key k and 0 at the others (so between keys two neighbouring corrections blend).
 
 Every accessor has ``min`` / ``max`` (required for ``POSITION`` and sampler inputs, optional
 elsewhere) equal to the stored (rounded) data; buffer views are 4-byte aligned, vertex-attribute
@@ -91,6 +95,7 @@ def write_rig_glb(
     key_times: Float[np.ndarray, " K"] | None = None,
     rotations: Float[np.ndarray, "K J 4"] | None = None,
     root_translations: Float[np.ndarray, "K 3"] | None = None,
+    morph_targets: Float[np.ndarray, "K V 3"] | None = None,
     name: str = "ncflow",
 ) -> Path:
     """Write a skinned character as a GLB (layout in the module docstring).
@@ -108,6 +113,8 @@ def write_rig_glb(
         rotations: (K, J, 4) local joint rotations (x, y, z, w) at the key times, relative to the
             bind pose (whose local rotations are the identity).
         root_translations: (K, 3) the root node's translation at the key times (its position).
+        morph_targets: (K, V, 3) per key, vertex displacements in the bind pose (applied before
+            skinning, glTF's order), at full weight at their key only; None: no morph targets.
         name: name of the mesh node, mesh, skin and clip.
 
     Returns:
@@ -149,6 +156,12 @@ def write_rig_glb(
             flip = np.sum(rot[i] * rot[i - 1], axis=1) < 0
             rot[i, flip] *= -1.0
         root = _check_points("root translations", root_translations, k)
+    if morph_targets is not None:
+        if not animated:
+            raise ResultError("morph targets are keyed to the animation: give key times too")
+        morphs = np.asarray(morph_targets, dtype=np.float64)
+        if morphs.shape != (k, nv, 3) or not np.all(np.isfinite(morphs)):
+            raise ResultError(f"morph targets must be finite with shape ({k}, {nv}, 3), got {morphs.shape}")
 
     f32 = np.float32
     v32 = v.astype(f32)
@@ -183,6 +196,16 @@ def write_rig_glb(
     )
     prim = pygltflib.Primitive(attributes=attrs, indices=indices, mode=pygltflib.TRIANGLES, material=0)
     gltf.meshes = [pygltflib.Mesh(name=name, primitives=[prim])]
+    if morph_targets is not None:
+        prim.targets = [
+            {
+                "POSITION": builder.add(
+                    m.astype(f32), component=pygltflib.FLOAT, type_="VEC3", target=pygltflib.ARRAY_BUFFER, minmax=True
+                )
+            }
+            for m in morphs
+        ]
+        gltf.meshes[0].weights = [0.0] * k
 
     offsets = pos - np.where(par[:, None] >= 0, pos[np.maximum(par, 0)], 0.0)
     children: list[list[int]] = [[] for _ in range(nj)]
@@ -223,6 +246,14 @@ def write_rig_glb(
                 sampler=len(samplers) - 1, target=pygltflib.AnimationChannelTarget(node=0, path="translation")
             )
         )
+        if morph_targets is not None:
+            out = builder.add(np.eye(k, dtype=f32).reshape(-1), component=pygltflib.FLOAT, type_="SCALAR", minmax=True)
+            samplers.append(pygltflib.AnimationSampler(input=key_in, output=out, interpolation=pygltflib.ANIM_LINEAR))
+            channels.append(
+                pygltflib.AnimationChannel(
+                    sampler=len(samplers) - 1, target=pygltflib.AnimationChannelTarget(node=mesh_node, path="weights")
+                )
+            )
         gltf.animations = [pygltflib.Animation(name=name, samplers=samplers, channels=channels)]
 
     return save_document(gltf, builder, path)

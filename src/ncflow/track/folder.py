@@ -1,0 +1,71 @@
+"""A folder written by ``ncflow track``, read back: what ``ncflow view`` shows of it.
+
+:func:`is_track_folder` tells a track from a match result (``track.json``); :func:`track_as_result` reads the
+good frames into a :class:`~ncflow.io.result.ResultFolder` the viewer plays: frame 0 the source at rest, then
+the registered source on every good frame (times evenly spaced), the skeleton's joints likewise, and as
+the target the last good frame (``target.ply``) with its map. Only files of the folder's own layout are
+read (``source.ply``, ``target.ply``, ``registered/``, ``maps/``, the JSON files); no path written in a
+file is followed.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ncflow.errors import InputError
+from ncflow.io.files import read_json_object, read_npz_arrays
+from ncflow.io.meshes import load_mesh
+from ncflow.io.result import ResultFolder
+from ncflow.skeleton import Skeleton
+
+__all__ = ["is_track_folder", "track_as_result"]
+
+
+def is_track_folder(path: str | os.PathLike) -> bool:
+    """Whether ``path`` is a folder written by ``ncflow track`` (it holds ``track.json``)."""
+    return (Path(path) / "track.json").is_file()
+
+
+def track_as_result(path: str | os.PathLike) -> ResultFolder:
+    """The registered sequence of a track folder as a :class:`~ncflow.io.result.ResultFolder` (module docstring).
+
+    Raises:
+        InputError: a folder without ``metrics.json`` (an unfinished track) or with broken files.
+    """
+    out = Path(path)
+    metrics = read_json_object(out / "metrics.json")
+    skel = read_json_object(out / "skeleton_frames.json")
+    stems = [f["stem"] for f in metrics.get("frames", []) if f.get("status") == "ok"]
+    if not stems or [f["stem"] for f in skel.get("frames", [])] != stems:
+        raise InputError("the track's metrics.json and skeleton_frames.json disagree on its frames", out)
+    meshes = [load_mesh(out / "registered" / f"{s}.ply") for s in stems]
+    rest = load_mesh(out / "source.ply")
+    if any(m.n_vertices != rest.n_vertices for m in meshes):
+        raise InputError("a registered frame does not have the source's vertices", out / "registered")
+    frames = np.stack([rest.vertices] + [m.vertices for m in meshes])
+    joints = np.stack(
+        [np.asarray(skel["rest"], np.float64)] + [np.asarray(f["joints"], np.float64) for f in skel["frames"]]
+    )
+    parents = np.asarray(skel["parents"], np.int64)
+    if joints.ndim != 3 or joints.shape[1:] != (parents.size, 3):
+        raise InputError("joints and parents of different sizes", out / "skeleton_frames.json")
+    maps = read_npz_arrays(out / "maps" / f"{stems[-1]}.npz", ("face", "bary"))
+    target = load_mesh(out / "target.ply")
+    if target.n_vertices != maps["face"].shape[0]:
+        raise InputError(f"does not fit the last frame's map ({stems[-1]})", out / "target.ply")
+    return ResultFolder(
+        deformed_source=meshes[-1].vertices,
+        source_faces=rest.faces,
+        maps={"map_face": maps["face"], "map_bary": maps["bary"]},
+        frames=frames,
+        frame_times=np.linspace(0.0, 1.0, frames.shape[0]),
+        metrics=metrics,
+        skeleton_target=Skeleton.from_arrays(joints[-1], parents),
+        skeleton_frames=joints,
+        joint_names=skel.get("names"),
+        target_vertices=target.vertices,
+        target_faces=target.faces,
+    )

@@ -1,0 +1,132 @@
+"""What one tracked frame hands the next: the warm configuration, the placement followed from frame to
+frame, the trained state on disk, and the test that says a warm start was lost.
+
+Each frame is matched from the **source** (the map of frame k is source → frame k, so errors do not
+accumulate); only the start of the optimisation is carried: the trained networks, pose and multipliers
+of the previous frame, handed to :class:`ncflow.matcher.Matcher` as a
+:class:`ncflow.matcher.steps.WarmStart` with its placement, moved onto the new frame by a trimmed rigid
+ICP (:func:`follow_placement`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Float
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from ncflow.config import Config
+from ncflow.geometry.mesh import Mesh
+from ncflow.matcher.inputs import intake
+from ncflow.matcher.placement import Placement
+from ncflow.matcher.prepare import DTYPE, working_source
+from ncflow.matcher.train import TrainState, init_params
+from ncflow.optim.mdmm import init_multipliers
+from ncflow.skeleton import Skeleton
+from ncflow.skeleton.kinematics import rest_pose
+
+__all__ = [
+    "ICP_ITERATIONS",
+    "WARM_LR",
+    "final_data",
+    "follow_placement",
+    "load_state",
+    "save_state",
+    "warm_config",
+]
+
+WARM_LR = 3e-3
+"""Peak learning rate of a warm frame's training (cosine down to the last phase's end rate)."""
+ICP_ITERATIONS = 30
+"""Iterations of the trimmed ICP that follows the placement from frame to frame."""
+ICP_TRIM = 2.5
+"""Pairs farther apart than this × their median distance are left out of an ICP step."""
+
+
+def warm_config(config: Config, steps: int, skinning_weights: str) -> Config:
+    """The configuration of a warm frame: one phase, the last phase of ``config`` (its metric and length
+    scales) shortened to ``steps`` steps at peak rate :data:`WARM_LR`; two interpolation frames (only
+    the end is kept); the bone-weight mode fixed to the first frame's (the trained state depends on it).
+    """
+    last = config.phases[-1]
+    phase = dataclasses.replace(
+        last,
+        name="warm",
+        steps=int(steps),
+        lr=min(WARM_LR, last.lr),
+        lr_end=last.lr_end if last.lr_end is not None else None,
+        warmup=min(last.warmup, max(0, int(steps) // 5)),
+    )
+    return fixed_weights(dataclasses.replace(config, phases=(phase,), frames=2), skinning_weights)
+
+
+def fixed_weights(config: Config, skinning_weights: str) -> Config:
+    """``config`` with ``flow.skinning_weights`` set (``"current"`` or ``"start"``)."""
+    return dataclasses.replace(config, flow=dataclasses.replace(config.flow, skinning_weights=skinning_weights))
+
+
+def final_data(result) -> float:
+    """The data term at the end of a match's training (its last stage)."""
+    return float(result.metrics["phases"][-1]["data"])
+
+
+def _kabsch(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(R, t) minimising Σ |R a + t − b|² over paired rows (Kabsch, scipy's ``align_vectors``)."""
+    ca, cb = a.mean(axis=0), b.mean(axis=0)
+    if a.shape[0] < 3:
+        return np.eye(3), cb - ca
+    rot = Rotation.align_vectors(b - cb, a - ca)[0].as_matrix()
+    return rot, cb - rot @ ca
+
+
+def follow_placement(
+    previous: Placement,
+    previous_placed: Float[np.ndarray, "N 3"],
+    reference: Float[np.ndarray, "M 3"],
+    target: Float[np.ndarray, "W 3"],
+) -> Placement:
+    """The placement of a new frame: ``previous`` moved so that the new ``target`` (normalised coordinates,
+    not placed) lies on ``reference`` (the previous frame's flowed source, training coordinates).
+
+    Starts from ``previous`` shifted by the change of the placed frames' centroids (``previous_placed``:
+    the previous target, placed), then :data:`ICP_ITERATIONS` steps of trimmed point-to-point ICP.
+    """
+    y = np.asarray(target, np.float64)
+    rot = np.asarray(previous.rotation, np.float64)
+    t = np.asarray(previous.translation, np.float64)
+    t = t + np.asarray(previous_placed, np.float64).mean(axis=0) - (y @ rot.T + t).mean(axis=0)
+    tree = cKDTree(np.asarray(reference, np.float64))
+    for _ in range(ICP_ITERATIONS):
+        placed = y @ rot.T + t
+        d, i = tree.query(placed)
+        keep = d <= ICP_TRIM * max(float(np.median(d)), 1e-12)
+        r_step, t_step = _kabsch(placed[keep], tree.data[i[keep]])
+        rot, t = r_step @ rot, r_step @ t + t_step
+    return Placement(rot, t, moved=True)
+
+
+def _template(source: Mesh, skeleton: Skeleton, config: Config, weight_mode: str) -> tuple:
+    """A state of the structure a match of ``source`` with ``config`` trains (values unused)."""
+    src, _, _ = intake(source, "source", config)
+    norm, _ = working_source(src, config)
+    skel = skeleton.with_positions(norm.apply(skeleton.positions))
+    params = init_params(jax.random.key(0), config, skel, None, weight_mode, None)
+    pose = rest_pose(skel, DTYPE)
+    return params, pose, init_multipliers(jnp.zeros((2, skel.n_bones), DTYPE))
+
+
+def save_state(path: str | Path, state: TrainState) -> None:
+    """Write a trained state's arrays (Equinox's leaf serialisation: arrays only, no code)."""
+    eqx.tree_serialise_leaves(path, (state.params, state.pose, state.multipliers))
+
+
+def load_state(path: str | Path, source: Mesh, skeleton: Skeleton, config: Config, weight_mode: str) -> TrainState:
+    """Read a state written by :func:`save_state` for ``source``, ``skeleton`` and ``config``."""
+    params, pose, mult = eqx.tree_deserialise_leaves(path, _template(source, skeleton, config, weight_mode))
+    return TrainState(params, pose, mult)
