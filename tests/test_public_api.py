@@ -31,6 +31,7 @@ PUBLIC = [
     "rig_result",
     "save_mesh",
     "save_skeleton",
+    "track_sequence",
     "transfer",
     "transfer_skin_weights",
     "varifold",

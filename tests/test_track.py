@@ -66,6 +66,11 @@ def test_frames_are_listed_in_natural_order(tmp_path):
         frame_files(_empty(tmp_path))
     with pytest.raises(InputError, match="no such frame"):
         frame_files([tmp_path / "missing.ply"])
+    (tmp_path / "scan 01.ply").write_text("x")
+    (tmp_path / "bad\x01.ply").write_text("x")
+    assert [p.name for p in frame_files([tmp_path / "scan 01.ply"])] == ["scan 01.ply"]
+    with pytest.raises(InputError, match="control characters"):
+        frame_files([tmp_path / "bad\x01.ply"])
 
 
 def _empty(tmp_path):
@@ -208,16 +213,12 @@ def test_an_interrupted_run_resumes_with_the_same_results(track, tmp_path):
             (out / folder / f"{stem}.{suffix}").unlink(missing_ok=True)
     (out / "metrics.json").unlink()
     seen = []
-    again = track_sequence(
-        track["root"] / "data" / "source.ply",
-        track["frames"],
-        track["root"] / "data" / "skeleton.tgf",
-        out,
-        _config(),
-        warm_steps=15,
-        quiet=True,
-        on_frame=lambda k, rec: seen.append(k),
-    )
+    data = track["root"] / "data"
+
+    def again_in(folder, **options):
+        return track_sequence(data / "source.ply", track["frames"], data / "skeleton.tgf", folder, _config(), **options)
+
+    again = again_in(out, warm_steps=15, quiet=True, on_frame=lambda k, rec: seen.append(k))
     assert again.n_resumed == 2 and seen == [2, 3, 4, 5]
     for stem in seq.stems:
         a = np.load(track["out"] / "maps" / f"{stem}.npz")
@@ -226,15 +227,7 @@ def test_an_interrupted_run_resumes_with_the_same_results(track, tmp_path):
         np.testing.assert_array_equal(a["bary"], b["bary"])
     # other settings: refused without --overwrite, nothing removed
     with pytest.raises(InputError, match="other inputs or settings"):
-        track_sequence(
-            track["root"] / "data" / "source.ply",
-            track["frames"],
-            track["root"] / "data" / "skeleton.tgf",
-            out,
-            _config(),
-            warm_steps=16,
-            quiet=True,
-        )
+        again_in(out, warm_steps=16, quiet=True)
     assert (out / "maps" / f"{seq.stems[0]}.npz").is_file()
 
 

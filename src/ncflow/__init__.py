@@ -48,6 +48,7 @@ _PUBLIC = {
     "rig_result": "ncflow.retarget",
     "save_mesh": "ncflow.io.meshes",
     "save_skeleton": "ncflow.skeleton",
+    "track_sequence": "ncflow.track",
     "transfer": "ncflow.retarget",
     "transfer_skin_weights": "ncflow.retarget",
     "varifold": "ncflow.measures",

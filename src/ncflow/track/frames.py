@@ -23,7 +23,7 @@ MAX_FRAMES = 100_000
 """The most frames one run takes."""
 
 _DIGITS = re.compile(r"(\d+)")
-_STEM = re.compile(r"^[A-Za-z0-9._+-]{1,120}$")
+_STEM = re.compile(r"^[^.\x00-\x1f\x7f][^\x00-\x1f\x7f]{0,199}$")
 
 
 def natural_key(name: str) -> tuple:
@@ -68,7 +68,11 @@ def frame_files(frames: str | os.PathLike | Sequence[str | os.PathLike]) -> list
         if not p.is_file():
             raise InputError("no such frame file", p)
         if not _STEM.match(p.stem):
-            raise InputError("a frame's outputs are named after its stem: use letters, digits and ._+- only", p)
+            raise InputError(
+                "a frame's outputs are named after its stem: it must not start with a dot, hold "
+                "control characters or exceed 200 characters",
+                p,
+            )
         if p.stem in seen:
             raise InputError(f"two frames named {p.stem!r} ({seen[p.stem]} and this one): stems must differ", p)
         seen[p.stem] = p

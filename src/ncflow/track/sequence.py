@@ -157,7 +157,7 @@ def _open_folder(out_dir, manifest: dict, overwrite: bool) -> tuple[Path, bool]:
             )
     elif out.is_dir() and any(os.scandir(out)) and not overwrite:
         raise InputError("exists and is not empty (use --overwrite to replace ncflow's files in it)", out_dir)
-    if not resumable:
+    if not resumable and old_path.is_file():  # a track ncflow wrote: its own files go, nothing else
         _remove_own(out)
     for name in OWN_FOLDERS:
         (out / name).mkdir(parents=True, exist_ok=True)
