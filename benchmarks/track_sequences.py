@@ -56,7 +56,7 @@ def score(name: str, data: Path, run: Path) -> dict:
     source = load_mesh(data / record["source"])
     diag = float(np.linalg.norm(np.ptp(source.vertices, axis=0)))
     aucs, registered, truth = [], [], np.load(data / "source_frames.npy")
-    for k, fr in enumerate(record["frames"]):
+    for fr in record["frames"]:
         stem = fr["stem"]
         if not (run / "maps" / f"{stem}.npz").is_file():
             aucs.append(float("nan"))
@@ -122,7 +122,8 @@ def main(argv=None) -> int:
             f"{name:16s} N={row['n_frames']:3d} AUC mean {row['auc_mean']:.3f} worst {row['auc_worst']:.3f} "
             f"drift {row['drift']:+.3f} jitter {row['jitter'] or 0:.4f} (truth {row['jitter_truth']:.4f}) "
             f"g/eps {row['max_violation_ratio']:.2f} fell back {row['n_fell_back']} "
-            f"first {row['first_frame_seconds']:.0f} s total {row['total_seconds']:.0f} s speed-up {row['speedup']:.1f}",
+            f"first {row['first_frame_seconds']:.0f} s total {row['total_seconds']:.0f} s "
+            f"speed-up {row['speedup']:.1f}",
             flush=True,
         )
         (out / "report.json").write_text(json.dumps(rows, indent=1))
