@@ -32,12 +32,20 @@ def _mesh(mesh) -> Mesh:
     return load_mesh(mesh)
 
 
+def load_source(source, skeleton) -> tuple[Mesh, Skeleton | None]:
+    """The source mesh and its skeleton from objects or file paths, as :func:`load_inputs` loads them (a
+    sequence loads its source once for all frames).
+    """
+    skel = skeleton if skeleton is None or isinstance(skeleton, Skeleton) else load_skeleton(skeleton)
+    return _mesh(source), skel
+
+
 def load_inputs(source, target, skeleton) -> tuple[Mesh, Mesh, Skeleton | None]:
     """Meshes and skeleton from objects or file paths, validated (meshes given as objects too:
     :func:`~ncflow.geometry.mesh.validate_mesh`); a skeleton of None stays None (one is suggested later).
     """
-    skel = skeleton if skeleton is None or isinstance(skeleton, Skeleton) else load_skeleton(skeleton)
-    return _mesh(source), _mesh(target), skel
+    src, skel = load_source(source, skeleton)
+    return src, _mesh(target), skel
 
 
 SIZE_RATIO_LIMIT = 2.0

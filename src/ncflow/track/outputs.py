@@ -21,6 +21,7 @@ import numpy as np
 from ncflow import __version__
 from ncflow.config import Config, config_to_dict
 from ncflow.geometry.mesh import Mesh
+from ncflow.geometry.rigid import dense_weights, linear_blend_skinning
 from ncflow.io.atomic import atomic_path, atomic_write_text
 from ncflow.io.bvh import write_bvh
 from ncflow.io.gltf.document import unique_names
@@ -38,8 +39,6 @@ def key_errors(
     """(K,) largest distance, per key, between the skinned and corrected source (float32, as stored in
     the GLB) and the registered shape.
     """
-    from ncflow.geometry.rigid import dense_weights, linear_blend_skinning
-
     w = dense_weights(motion.joints, motion.weights.astype(np.float32), motion.transforms.shape[1])
     v = np.asarray(source_vertices, np.float32).astype(np.float64)
     out = np.empty(morphs.shape[0])

@@ -43,7 +43,7 @@ from ncflow.geometry.normalize import fit_normalization
 from ncflow.io.atomic import atomic_path, atomic_write_text, check_output_dir
 from ncflow.io.files import file_sha256, read_json_object
 from ncflow.io.meshes import load_mesh, save_mesh
-from ncflow.matcher.inputs import intake, load_inputs
+from ncflow.matcher.inputs import intake, load_source
 from ncflow.matcher.placement import Placement
 from ncflow.matcher.prepare import suggested_skeleton
 from ncflow.matcher.steps import Matcher, WarmStart
@@ -303,13 +303,14 @@ def _match_frame(src, frame: Mesh, skel, run: _Run, last: _Last, lost_ratio, ref
     return better, dict(info, fell_back=True, kept="search" if better is full else "warm")
 
 
-def _hand_on(result, stem: str) -> _Last:
-    """What the next frame starts from (training coordinates of this frame's result)."""
-    norm, pl = result.normalization, result.placement
-    placed_target = pl.apply(norm.apply(result.target.vertices))
-    registered = np.asarray(result.deformed_source, np.float32).astype(np.float64)  # as registered/STEM.ply holds it
-    reference = pl.apply(norm.apply(registered))
-    return _Last(WarmStart(result.state, pl), placed_target, reference, stem)
+def _hand_on(state, placement: Placement, norm, frame, registered, stem: str) -> _Last:
+    """What the next frame starts from: the frame's trained ``state`` and ``placement``, the frame's vertices
+    and its registered source (user coordinates, as ``registered/STEM.ply`` holds it: float32) placed in
+    training coordinates — the same for a frame just finished and one read back.
+    """
+    registered = np.asarray(registered, np.float32).astype(np.float64)
+    placed = placement.apply(norm.apply(frame)), placement.apply(norm.apply(registered))
+    return _Last(WarmStart(state, placement), *placed, stem)
 
 
 def _resumed(out: Path, path: Path, sha: str, previous, src: Mesh, skel: Skeleton, run: _Run):
@@ -323,7 +324,7 @@ def _resumed(out: Path, path: Path, sha: str, previous, src: Mesh, skel: Skeleto
         if run.mode not in (None, mode):
             return None
         run.fix_mode(mode)
-        state = load_state(out / "state" / f"{stem}.eqx", src, skel, run.full, mode)
+        state = load_state(out / "state" / f"{stem}.eqx", skel, run.normalization, run.full, mode)
         reg = load_mesh(out / "registered" / f"{stem}.ply").vertices
         frame = load_mesh(path).vertices
         pl = Placement(
@@ -333,13 +334,12 @@ def _resumed(out: Path, path: Path, sha: str, previous, src: Mesh, skel: Skeleto
         return None
     if reg.shape != src.vertices.shape:
         return None
-    norm = run.normalization
-    return rec, _Last(WarmStart(state, pl), pl.apply(norm.apply(frame)), pl.apply(norm.apply(reg)), stem)
+    return rec, _hand_on(state, pl, run.normalization, frame, reg, stem)
 
 
 def _inputs(source, skeleton, config, message) -> tuple[Mesh, Skeleton, bool, object]:
     """The source, its skeleton (suggested when None), whether it was suggested, and the normalisation."""
-    src, _, skel = load_inputs(source, source, skeleton)
+    src, skel = load_source(source, skeleton)
     clean, _, _ = intake(src, "source", config)
     suggested = skel is None
     if suggested:
@@ -401,7 +401,8 @@ def track_sequence(
     options = {"warm_steps": warm_steps, "lost_ratio": lost_ratio, "fps": fps}
     out, resumable = _open_folder(out_dir, _manifest(source, skeleton, cfg, options), overwrite)
     if suggested:
-        atomic_save_skeleton(out / "skeleton_source.tgf", skel)
+        with atomic_path(out / "skeleton_source.tgf") as tmp:
+            save_skeleton(tmp, skel)
     run = _Run(cfg, warm_steps, norm)
     last = _Last(None, None, None, None)
     records: list[dict] = []
@@ -428,7 +429,9 @@ def track_sequence(
             rec = _frame_record(stem, path, sha, last.stem, result, info, time.perf_counter() - t1)
             _write_frame(out, stem, result, rec)
             records.append(rec)
-            last = _hand_on(result, stem)
+            last = _hand_on(
+                result.state, result.placement, run.normalization, frame.vertices, result.deformed_source, stem
+            )
         if on_frame:
             on_frame(k, records[-1])
     ok = [r for r in records if r["status"] == "ok"]
@@ -447,9 +450,3 @@ def track_sequence(
         seconds=time.perf_counter() - t0,
         metrics=metrics,
     )
-
-
-def atomic_save_skeleton(path: Path, skeleton: Skeleton) -> None:
-    """:func:`ncflow.skeleton.save_skeleton`, atomically."""
-    with atomic_path(path) as tmp:
-        save_skeleton(tmp, skeleton)

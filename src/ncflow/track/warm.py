@@ -22,10 +22,9 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from ncflow.config import Config
-from ncflow.geometry.mesh import Mesh
-from ncflow.matcher.inputs import intake
+from ncflow.geometry.normalize import Normalization
 from ncflow.matcher.placement import Placement
-from ncflow.matcher.prepare import DTYPE, working_source
+from ncflow.matcher.prepare import DTYPE
 from ncflow.matcher.train import TrainState, init_params
 from ncflow.optim.mdmm import init_multipliers
 from ncflow.skeleton import Skeleton
@@ -60,7 +59,6 @@ def warm_config(config: Config, steps: int, skinning_weights: str) -> Config:
         name="warm",
         steps=int(steps),
         lr=min(WARM_LR, last.lr),
-        lr_end=last.lr_end if last.lr_end is not None else None,
         warmup=min(last.warmup, max(0, int(steps) // 5)),
     )
     return fixed_weights(dataclasses.replace(config, phases=(phase,), frames=2), skinning_weights)
@@ -111,10 +109,10 @@ def follow_placement(
     return Placement(rot, t, moved=True)
 
 
-def _template(source: Mesh, skeleton: Skeleton, config: Config, weight_mode: str) -> tuple:
-    """A state of the structure a match of ``source`` with ``config`` trains (values unused)."""
-    src, _, _ = intake(source, "source", config)
-    norm, _ = working_source(src, config)
+def _template(skeleton: Skeleton, norm: Normalization, config: Config, weight_mode: str) -> tuple:
+    """A state of the structure a match with ``config`` trains, its skeleton normalised by the source's
+    ``norm`` as the match normalises it (values unused).
+    """
     skel = skeleton.with_positions(norm.apply(skeleton.positions))
     params = init_params(jax.random.key(0), config, skel, None, weight_mode, None)
     pose = rest_pose(skel, DTYPE)
@@ -126,7 +124,12 @@ def save_state(path: str | Path, state: TrainState) -> None:
     eqx.tree_serialise_leaves(path, (state.params, state.pose, state.multipliers))
 
 
-def load_state(path: str | Path, source: Mesh, skeleton: Skeleton, config: Config, weight_mode: str) -> TrainState:
-    """Read a state written by :func:`save_state` for ``source``, ``skeleton`` and ``config``."""
-    params, pose, mult = eqx.tree_deserialise_leaves(path, _template(source, skeleton, config, weight_mode))
+def load_state(
+    path: str | Path, skeleton: Skeleton, norm: Normalization, config: Config, weight_mode: str
+) -> TrainState:
+    """Read a state written by :func:`save_state` for ``skeleton`` (user coordinates), the source's
+    normalisation ``norm`` (:func:`ncflow.geometry.normalize.fit_normalization` of the source after the
+    intake step, as the match fits it) and ``config``.
+    """
+    params, pose, mult = eqx.tree_deserialise_leaves(path, _template(skeleton, norm, config, weight_mode))
     return TrainState(params, pose, mult)
