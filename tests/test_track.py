@@ -290,3 +290,31 @@ def test_generated_sequence_has_exact_ground_truth(track):
     assert len({f.n_vertices for f in seq.frames}) > 1
     step = [np.linalg.norm(seq.joints[k + 1] - seq.joints[k], axis=1).mean() for k in range(len(seq.frames) - 1)]
     assert step[N_SMOOTH - 1] > 3 * max(step[: N_SMOOTH - 1])
+
+
+@pytest.mark.parametrize(
+    "frames, message",
+    [
+        ([{"stem": "../../outside", "status": "ok"}], "not a file of the track"),
+        ([1, 2], "not the metrics.json of a finished track"),
+        ([{"stem": "a", "status": "ok"}, {"stem": "a", "status": "ok"}], "disagree"),
+    ],
+)
+def test_view_reads_nothing_a_track_file_points_outside(track, tmp_path, frames, message):
+    """A hostile metrics.json: a stem that leaves the folder, frames that are not records, a stem twice (one
+    file loaded again and again) are refused in one line; nothing outside the folder is read."""
+    from ncflow.track.folder import track_as_result
+
+    out = tmp_path / "t"
+    shutil.copytree(track["out"], out)
+    (tmp_path / "outside.ply").write_bytes((out / "source.ply").read_bytes())
+    metrics = json.loads((out / "metrics.json").read_text())
+    metrics["frames"] = frames
+    (out / "metrics.json").write_text(json.dumps(metrics))
+    skel = json.loads((out / "skeleton_frames.json").read_text())
+    skel["frames"] = [{"stem": f["stem"], "joints": skel["rest"]} for f in frames if isinstance(f, dict)]
+    (out / "skeleton_frames.json").write_text(json.dumps(skel))
+    with pytest.raises(InputError, match=message):
+        track_as_result(out)
+    assert main(["view", str(out), "--out", str(tmp_path / "v.html")]) == 2
+    assert not (tmp_path / "v.html").exists()

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ncflow.errors import InputError
-from ncflow.io.files import read_json_object, read_npz_arrays
+from ncflow.io.files import confined_path, read_json_object, read_npz_arrays
 from ncflow.io.meshes import load_mesh
 from ncflow.io.result import ResultFolder
 from ncflow.skeleton import Skeleton
@@ -29,6 +29,29 @@ def is_track_folder(path: str | os.PathLike) -> bool:
     return (Path(path) / "track.json").is_file()
 
 
+def _good_stems(out: Path, metrics: dict, skel: dict) -> list[str]:
+    """The stems of the good frames, the same in ``metrics.json`` and ``skeleton_frames.json``, distinct, and
+    names of files inside the folder (a stem is a file name the track wrote, never a path to follow).
+    """
+    try:
+        stems = [f["stem"] for f in metrics["frames"] if f.get("status") == "ok"]
+        same = [f["stem"] for f in skel["frames"]] == stems
+    except (KeyError, TypeError, AttributeError):
+        raise InputError("is not the metrics.json of a finished track (no frames)", out / "metrics.json") from None
+    if not stems or not same or len(set(map(str, stems))) != len(stems):
+        raise InputError("the track's metrics.json and skeleton_frames.json disagree on its frames", out)
+    for s in stems:
+        try:
+            if not isinstance(s, str) or Path(s).name != s:
+                raise ValueError("not a file name")
+            confined_path(out / "registered", f"{s}.ply")
+        except ValueError as exc:
+            raise InputError(
+                f"names a frame {s!r} that is not a file of the track ({exc})", out / "metrics.json"
+            ) from None
+    return stems
+
+
 def track_as_result(path: str | os.PathLike) -> ResultFolder:
     """The registered sequence of a track folder as a :class:`~ncflow.io.result.ResultFolder` (module docstring).
 
@@ -38,18 +61,19 @@ def track_as_result(path: str | os.PathLike) -> ResultFolder:
     out = Path(path)
     metrics = read_json_object(out / "metrics.json")
     skel = read_json_object(out / "skeleton_frames.json")
-    stems = [f["stem"] for f in metrics.get("frames", []) if f.get("status") == "ok"]
-    if not stems or [f["stem"] for f in skel.get("frames", [])] != stems:
-        raise InputError("the track's metrics.json and skeleton_frames.json disagree on its frames", out)
+    stems = _good_stems(out, metrics, skel)
     meshes = [load_mesh(out / "registered" / f"{s}.ply") for s in stems]
     rest = load_mesh(out / "source.ply")
     if any(m.n_vertices != rest.n_vertices for m in meshes):
         raise InputError("a registered frame does not have the source's vertices", out / "registered")
     frames = np.stack([rest.vertices] + [m.vertices for m in meshes])
-    joints = np.stack(
-        [np.asarray(skel["rest"], np.float64)] + [np.asarray(f["joints"], np.float64) for f in skel["frames"]]
-    )
-    parents = np.asarray(skel["parents"], np.int64)
+    try:
+        joints = np.stack(
+            [np.asarray(skel["rest"], np.float64)] + [np.asarray(f["joints"], np.float64) for f in skel["frames"]]
+        )
+        parents = np.asarray(skel["parents"], np.int64)
+    except (KeyError, TypeError, ValueError):
+        raise InputError("joints or parents missing or not numbers", out / "skeleton_frames.json") from None
     if joints.ndim != 3 or joints.shape[1:] != (parents.size, 3):
         raise InputError("joints and parents of different sizes", out / "skeleton_frames.json")
     maps = read_npz_arrays(out / "maps" / f"{stems[-1]}.npz", ("face", "bary"))
