@@ -20,6 +20,7 @@ from jaxtyping import Bool, Float, Int
 from ncflow.errors import InputError
 from ncflow.evaluate.geodesics import GeodesicInfo, pair_geodesic_distances
 from ncflow.geometry.closest import closest_points_on_surface
+from ncflow.geometry.cloud import PointCloud
 from ncflow.geometry.mesh import Mesh, enclosed_volume, face_areas, repaired_mesh
 
 TAU_MAX = {"geodesic": 0.20, "chamfer": 0.10, "conformal": 0.15}
@@ -95,7 +96,7 @@ def geodesic_errors(
 def chamfer_distances(
     deformed_source: Float[np.ndarray, "V 3"],
     source_faces: Int[np.ndarray, "F 3"],
-    target: Mesh,
+    target: Mesh | PointCloud,
     scale: float | None = None,
 ) -> tuple[Float[np.ndarray, " V"], Float[np.ndarray, " W"]]:
     """Per-vertex unsquared Chamfer distances (exact point-to-surface), both directions.
@@ -103,7 +104,7 @@ def chamfer_distances(
     Args:
         deformed_source: (V, 3) flowed source vertices, in the target's coordinates.
         source_faces: (F, 3) source connectivity.
-        target: the target mesh.
+        target: the target mesh (a point cloud, without faces: distances to its nearest points).
         scale: factor applied to the distances: pass :func:`unit_cube_scale` of the rest
             source for unit-cube units (as :func:`evaluate_correspondence` does); None keeps the
             input's own units.
@@ -114,7 +115,12 @@ def chamfer_distances(
     """
     s = 1.0 if scale is None else float(scale)
     x = np.asarray(deformed_source, dtype=np.float64)
-    a = closest_points_on_surface(x, target.vertices, target.faces)[0]
+    if target.faces.shape[0]:
+        a = closest_points_on_surface(x, target.vertices, target.faces)[0]
+    else:  # a point cloud: the nearest point
+        from scipy.spatial import cKDTree
+
+        a = cKDTree(target.vertices).query(x)[0]
     b = closest_points_on_surface(target.vertices, x, source_faces)[0]
     return a * s, b * s
 
@@ -355,7 +361,7 @@ def _check_map(face, bary, n: int, n_faces: int, what: str) -> tuple[np.ndarray,
 
 def evaluate_correspondence(
     source: Mesh,
-    target: Mesh,
+    target: Mesh | PointCloud,
     pred_face: Int[np.ndarray, " W"],
     pred_bary: Float[np.ndarray, "W 3"],
     gt_face: Int[np.ndarray, " K"],

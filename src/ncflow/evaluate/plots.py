@@ -53,7 +53,7 @@ def _plot_writers(ev) -> dict:
     rec = ev.record
     aucs = {m: rec["headline"][f"{m}_auc"] for m in CURVE_METRICS}
     title = Path(rec["inputs"]["result_dir"]).name
-    return {
+    writers = {
         "cumulative": lambda p: plot_cumulative_curves(rec["curves"], aucs, p, title=title),
         "geodesic_error": lambda p: render_error_map(
             ev.target.vertices,
@@ -67,6 +67,9 @@ def _plot_writers(ev) -> dict:
             ev.source, ev.target, ev.pred_face, ev.pred_bary, ev.ground_truth, p, title=title
         ),
     }
+    if not ev.target.faces.shape[0]:  # a point cloud: no surface to colour (the viewer shows its points)
+        del writers["geodesic_error"], writers["color_transfer"]
+    return writers
 
 
 def _figure(width: float, height: float):

@@ -37,11 +37,13 @@ from ncflow.errors import InputError
 from ncflow.evaluate.formatting import as_number, format_number
 from ncflow.evaluate.metrics import TAU_MAX, evaluate_correspondence, pck_curve
 from ncflow.evaluate.plots import EVALUATION_PLOTS, _plot_writers
+from ncflow.geometry.cloud import PointCloud
 from ncflow.geometry.mesh import Mesh
 from ncflow.io.arrays import dumps_strict, json_safe
 from ncflow.io.atomic import atomic_path, atomic_write_text
 from ncflow.io.ground_truth import GroundTruth, load_ground_truth
 from ncflow.io.meshes import load_mesh
+from ncflow.io.points import load_target
 from ncflow.io.result import ResultFolder, read_result
 
 EVALUATION_FILE = "evaluation.json"
@@ -68,14 +70,14 @@ class Evaluation:
     record: dict
     arrays: dict
     source: Mesh
-    target: Mesh
+    target: Mesh | PointCloud
     pred_face: Int[np.ndarray, " Vt"]
     pred_bary: Float[np.ndarray, "Vt 3"]
     ground_truth: GroundTruth
     result_dir: Path
 
 
-def _check_result_matches(result: ResultFolder, source: Mesh, target: Mesh) -> None:
+def _check_result_matches(result: ResultFolder, source: Mesh, target: Mesh | PointCloud) -> None:
     if result.n_source != source.n_vertices or not np.array_equal(result.source_faces, source.faces):
         raise InputError(
             f"the result's source has {result.n_source} vertices and {len(result.source_faces)} faces, "
@@ -210,7 +212,7 @@ def evaluate_result(
     result_dir = Path(result_dir)
     result = read_result(result_dir)
     src = source if isinstance(source, Mesh) else load_mesh(source)
-    tgt = target if isinstance(target, Mesh) else load_mesh(target)
+    tgt = target if isinstance(target, (Mesh, PointCloud)) else load_target(target)
     _check_result_matches(result, src, tgt)
     truth = gt if isinstance(gt, GroundTruth) else load_ground_truth(gt, src, tgt, gt_format)
     if truth.n_target != tgt.n_vertices:

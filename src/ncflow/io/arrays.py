@@ -115,9 +115,13 @@ def as_frames(frames: Any, what: str = "frames") -> np.ndarray:
     return arr
 
 
-def as_faces(faces: Any, n_vertices: int, what: str = "faces") -> np.ndarray:
-    """``faces`` as an int64 (F, 3) array, F ≥ 1, indices in [0, n_vertices), or a :class:`ResultError`."""
+def as_faces(faces: Any, n_vertices: int, what: str = "faces", allow_empty: bool = False) -> np.ndarray:
+    """``faces`` as an int64 (F, 3) array, F ≥ 1 (F ≥ 0 with ``allow_empty``: a point cloud), indices in
+    [0, n_vertices), or a :class:`ResultError`.
+    """
     f = np.asarray(faces)
+    if f.size == 0 and allow_empty:
+        return np.zeros((0, 3), np.int64)
     if f.ndim != 2 or f.shape[1] != 3 or f.shape[0] == 0 or not np.issubdtype(f.dtype, np.integer):
         raise ResultError(f"{what} must be (F, 3) integers with F ≥ 1, got shape {f.shape} dtype {f.dtype}")
     if f.min() < 0 or f.max() >= n_vertices:

@@ -55,6 +55,7 @@ import numpy as np
 from jaxtyping import Float, Int
 
 from ncflow.errors import InputError, ResultError, first_line
+from ncflow.geometry.mesh import Mesh
 from ncflow.geometry.skeleton import Skeleton
 from ncflow.io.arrays import (
     as_faces,
@@ -72,6 +73,7 @@ from ncflow.io.frames import read_skeleton_frames_json, write_frames, write_skel
 from ncflow.io.gltf.writer import write_animation_glb
 from ncflow.io.ground_truth import read_index_file
 from ncflow.io.meshes import load_mesh, save_mesh
+from ncflow.io.points import is_point_cloud_file, load_target, save_target
 from ncflow.io.skeletons import load_skeleton, save_skeleton
 
 CONTRACT_FILES = (
@@ -237,7 +239,7 @@ def _checked(r: ResultFolder) -> ResultFolder:
         tv = as_frames(np.asarray(r.target_vertices)[None], "target vertices")[0]
         if tv.shape[0] != nt:
             raise ResultError(f"the target has {tv.shape[0]} vertices but the maps have {nt} target vertices")
-        target = (tv, as_faces(r.target_faces, nt, "target faces"))
+        target = (tv, as_faces(r.target_faces, nt, "target faces", allow_empty=True))
     metrics = {} if r.metrics is None else r.metrics
     if not isinstance(metrics, dict):
         raise ResultError(f"metrics must be a dict, got {type(metrics).__name__}")
@@ -292,7 +294,7 @@ def _write_files(tmp: Path, r: ResultFolder, clip_seconds: float) -> None:
     """Every file of the contract of a checked folder into ``tmp``."""
     save_mesh(tmp / "deformed_source.ply", r.deformed_source, r.source_faces)
     if r.target_vertices is not None:
-        save_mesh(tmp / "target.ply", r.target_vertices, r.target_faces)
+        save_target(tmp / "target.ply", r.target_vertices, r.target_faces)
     _write_indices(tmp / "p2p_src_to_tgt.txt", r.p2p_src_to_tgt)
     _write_indices(tmp / "p2p_tgt_to_src.txt", r.p2p_tgt_to_src)
     with atomic_path(tmp / "map_tgt_to_src.npz") as part:
@@ -383,9 +385,12 @@ def _read_json(path: Path) -> dict:
     return read_json_object(path)
 
 
-def _read_ply(path: Path):
+def _read_ply(path: Path, cloud_ok: bool = False):
     if not path.is_file():
         raise InputError("missing result file", path)
+    if cloud_ok and is_point_cloud_file(path):  # the target of a match against a point cloud
+        cloud = load_target(path)
+        return Mesh(cloud.points, np.zeros((0, 3), np.int64), name=str(path))
     mesh = load_mesh(path, weld=False, validate=False)
     if not np.all(np.isfinite(mesh.vertices)):
         raise InputError("non-finite vertex coordinates", path)
@@ -433,7 +438,7 @@ def read_result(out_dir: str | os.PathLike, *, check_animation: bool = True) -> 
     target_vertices = target_faces = None
     target_path = out_dir / "target.ply"
     if target_path.exists():
-        tm = _read_ply(target_path)
+        tm = _read_ply(target_path, cloud_ok=True)
         if tm.n_vertices != nt:
             raise InputError(f"the target has {tm.n_vertices} vertices but the maps have {nt}", target_path)
         target_vertices, target_faces = tm.vertices, tm.faces
@@ -558,7 +563,7 @@ def result_target(
         return result.target_vertices, result.target_faces
     if not replace and result.target_vertices is not None:
         raise InputError("--target is only for results without target.ply; this result has one", target)
-    mesh = load_mesh(target)
+    mesh = load_target(target)
     if mesh.n_vertices != result.n_target:
         raise InputError(
             f"has {mesh.n_vertices} vertices but the result maps {result.n_target} target vertices "

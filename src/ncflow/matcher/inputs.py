@@ -15,12 +15,17 @@ seams is welded, zero-area and duplicate faces are dropped, non-manifold edges a
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from ncflow.errors import InputError
+from ncflow.geometry.cloud import PointCloud, cloud_outliers, oriented_normals, point_spacing, validate_cloud
 from ncflow.geometry.mesh import Mesh, face_areas, orientation, repaired_mesh, validate_mesh
+from ncflow.geometry.reconstruct import reconstruct_surface
 from ncflow.geometry.repair import Repair
 from ncflow.io.meshes import load_mesh
+from ncflow.io.points import load_target
 from ncflow.skeleton import Skeleton, load_skeleton
 from ncflow.skeleton.checks import DEFAULT_TOLERANCES, check_inside_at
 
@@ -40,12 +45,63 @@ def load_source(source, skeleton) -> tuple[Mesh, Skeleton | None]:
     return _mesh(source), skel
 
 
-def load_inputs(source, target, skeleton) -> tuple[Mesh, Mesh, Skeleton | None]:
+def _target(target) -> Mesh | PointCloud:
+    if isinstance(target, PointCloud):
+        validate_cloud(target.points, target.normals, name=target.name)
+        return target
+    return _mesh(target) if isinstance(target, Mesh) else load_target(target)
+
+
+def load_inputs(source, target, skeleton) -> tuple[Mesh, Mesh | PointCloud, Skeleton | None]:
     """Meshes and skeleton from objects or file paths, validated (meshes given as objects too:
-    :func:`~ncflow.geometry.mesh.validate_mesh`); a skeleton of None stays None (one is suggested later).
+    :func:`~ncflow.geometry.mesh.validate_mesh`); the target may be a point cloud (a file without faces,
+    :func:`ncflow.io.points.load_target`); a skeleton of None stays None (one is suggested later).
     """
     src, skel = load_source(source, skeleton)
-    return src, _mesh(target), skel
+    return src, _target(target), skel
+
+
+def cloud_surface(cloud: PointCloud) -> tuple[Mesh, dict]:
+    """The surface a point-cloud target is matched through, and what was done to make it: outliers
+    (:func:`~ncflow.geometry.cloud.cloud_outliers`) left out, normals oriented outward (the file's or
+    estimated: :func:`~ncflow.geometry.cloud.oriented_normals`), the implicit surface of the rest
+    (:func:`~ncflow.geometry.reconstruct.reconstruct_surface`), open where the scan saw nothing.
+
+    Returns:
+        (the surface as a :class:`Mesh` named after the cloud, a summary: ``n_points``, ``n_outliers``,
+        ``outliers`` ((N,) bool), ``normals`` ("file" or "estimated"), ``spacing``, ``surface_vertices``,
+        ``surface_faces``, ``seconds``).
+    """
+    t0 = time.perf_counter()
+    outliers = cloud_outliers(cloud.points)
+    keep = ~outliers
+    normals = oriented_normals(cloud, keep)
+    spacing = point_spacing(cloud.points[keep])
+    vertices, faces = reconstruct_surface(cloud.points[keep], normals[keep], spacing)
+    if faces.shape[0] == 0:
+        raise InputError("no surface could be made of the points (too sparse or too noisy?)", cloud.name)
+    given = cloud.normals is not None and bool(np.all(np.linalg.norm(cloud.normals[keep], axis=1) > 0))
+    info = {
+        "n_points": cloud.n_points,
+        "n_outliers": int(outliers.sum()),
+        "outliers": outliers,
+        "normals": "file" if given else "estimated",
+        "spacing": spacing,
+        "surface_vertices": int(vertices.shape[0]),
+        "surface_faces": int(faces.shape[0]),
+        "seconds": time.perf_counter() - t0,
+    }
+    return Mesh(vertices, faces, name=cloud.name), info
+
+
+def cloud_warning(cloud: PointCloud, info: dict) -> str:
+    """What a user hears of a point-cloud target (:func:`cloud_surface`)."""
+    left = f", {info['n_outliers']} outliers left out" if info["n_outliers"] else ""
+    return (
+        f"{cloud.name or 'target'}: a point cloud of {info['n_points']} points, matched through a surface made of it "
+        f"({info['surface_faces']} triangles, normals {'from the file' if info['normals'] == 'file' else 'estimated'}"
+        f"{left}); every point is mapped"
+    )
 
 
 SIZE_RATIO_LIMIT = 2.0

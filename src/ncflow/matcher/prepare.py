@@ -18,13 +18,14 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Float
 
+from ncflow.geometry.cloud import PointCloud
 from ncflow.geometry.decimate import Decimation, decimate
 from ncflow.geometry.mesh import Mesh
 from ncflow.geometry.normalize import Normalization, fit_normalization
 from ncflow.geometry.overlap import self_overlap
 from ncflow.geometry.repair import Repair
 from ncflow.geometry.topology import Topology, mesh_topology
-from ncflow.matcher.inputs import check_inputs, intake, load_inputs
+from ncflow.matcher.inputs import check_inputs, cloud_surface, cloud_warning, intake, load_inputs
 from ncflow.skeleton import Skeleton
 from ncflow.skeleton.checks import bones_partly_outside, flesh_radius, inside_axial_ranges
 from ncflow.skeleton.suggest import suggest_skeleton
@@ -69,6 +70,8 @@ class Setup:
         skinning_weights: the skeleton-driven field's weight mode and why (:func:`skinning_weight_mode`).
         skeleton_suggested: what :func:`suggested_skeleton` says of a skeleton suggested because none was
             given, or None.
+        target_cloud: for a point-cloud target (``target`` then holds its points and no faces), what
+            :func:`~ncflow.matcher.inputs.cloud_surface` did to make the surface the match sees; else None.
     """
 
     source: Mesh
@@ -94,6 +97,7 @@ class Setup:
     warnings: tuple[str, ...]
     skinning_weights: dict
     skeleton_suggested: dict | None = None
+    target_cloud: dict | None = None
 
 
 def bone_radii(config, skeleton: Skeleton, flesh: Float[np.ndarray, " B"]) -> Float[np.ndarray, " B"]:
@@ -174,7 +178,17 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Setu
         message: called with one-line progress notes (warnings, tetrahedralisation).
     """
     src, tgt, skel = load_inputs(source, target, skeleton)
-    (src_c, src_r, src_note), (tgt_c, tgt_r, tgt_note) = intake(src, "source", config), intake(tgt, "target", config)
+    cloud = None
+    if isinstance(tgt, PointCloud):
+        surface, cloud = cloud_surface(tgt)
+        message(f"note: {cloud_warning(tgt, cloud)}")
+        tgt = Mesh(tgt.points, np.zeros((0, 3), np.int64), name=tgt.name)
+    else:
+        surface = tgt
+    (src_c, src_r, src_note), (tgt_c, tgt_r, tgt_note) = (
+        intake(src, "source", config),
+        intake(surface, "target", config),
+    )
     suggested = None
     if skel is None:
         skel, suggested = suggested_skeleton(src_c, message)
@@ -227,6 +241,7 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Setu
         warnings=tuple(warnings),
         skinning_weights=weights,
         skeleton_suggested=suggested,
+        target_cloud=cloud,
     )
 
 

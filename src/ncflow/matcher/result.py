@@ -191,7 +191,8 @@ def build_result(
     )
     src_r, tgt_r = setup.source_repair, setup.target_repair
     target_points = placed.placement.apply(setup.target_points)
-    maps = correspondence_maps(src_v, src_r.input_faces, deformed_n, target_points, tgt_r.input_faces)
+    tgt_faces = None if setup.target_cloud is not None else tgt_r.input_faces  # a cloud: nearest points
+    maps = correspondence_maps(src_v, src_r.input_faces, deformed_n, target_points, tgt_faces)
     maps["map_face"] = src_r.face_origin[maps["map_face"]]  # the face of the source as given
     pivot = src_v.mean(axis=0)
     stretch = skin_stretch(src_v, deformed_n, setup.skeleton_normalized)
@@ -362,7 +363,19 @@ def _metrics(setup, placed, trained, programs, targets, cfg, g_ep, g_tr, maps, t
         "placement_trials": list(placed.trials),
         "setup_cache": dict(placed.setup_cache),
         "skinning_weights": dict(setup.skinning_weights),
+        "target_cloud": _cloud_summary(setup.target_cloud),
     }
+
+
+def _cloud_summary(cloud: dict | None) -> dict | None:
+    """``metrics.json``'s record of a point-cloud target (:func:`ncflow.matcher.inputs.cloud_surface`, its
+    spacing in the target's units), the outliers as indices of points (the first 1000).
+    """
+    if cloud is None:
+        return None
+    out = {k: v for k, v in cloud.items() if k != "outliers"}
+    out["outlier_indices"] = np.flatnonzero(cloud["outliers"])[:1000].tolist()
+    return out
 
 
 def move_back(placement: Placement | None, states: np.ndarray, times: np.ndarray, pivot: np.ndarray) -> np.ndarray:

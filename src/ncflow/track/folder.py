@@ -18,6 +18,7 @@ import numpy as np
 from ncflow.errors import InputError
 from ncflow.io.files import confined_path, read_json_object, read_npz_arrays
 from ncflow.io.meshes import load_mesh
+from ncflow.io.points import load_target
 from ncflow.io.result import ResultFolder
 from ncflow.skeleton import Skeleton
 
@@ -77,7 +78,7 @@ def track_as_result(path: str | os.PathLike) -> ResultFolder:
     if joints.ndim != 3 or joints.shape[1:] != (parents.size, 3):
         raise InputError("joints and parents of different sizes", out / "skeleton_frames.json")
     maps = read_npz_arrays(out / "maps" / f"{stems[-1]}.npz", ("face", "bary"))
-    target = load_mesh(out / "target.ply")
+    target = load_target(out / "target.ply")
     if target.n_vertices != maps["face"].shape[0]:
         raise InputError(f"does not fit the last frame's map ({stems[-1]})", out / "target.ply")
     return ResultFolder(

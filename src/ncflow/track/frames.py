@@ -1,9 +1,10 @@
 """The frames of a sequence: a folder, a glob pattern or a list of files, in natural sort order.
 
-``frame_files("capture/")`` lists the mesh files of a folder (:data:`~ncflow.io.meshes.MESH_SUFFIXES`,
-hidden files skipped) in natural order (``f2`` before ``f10``); a pattern with ``*``, ``?`` or ``[``
-is expanded the same way; a list is taken in the order given. Each frame's outputs are named after
-its file's stem, so two frames with one stem are refused.
+``frame_files("capture/")`` lists the mesh and point-cloud files of a folder (:data:`FOLDER_SUFFIXES`:
+:data:`~ncflow.io.meshes.MESH_SUFFIXES`, ``.xyz`` and ``.npy``, not ``.txt``, which a folder's notes
+use too; hidden files skipped) in natural order (``f2`` before ``f10``); a pattern with ``*``, ``?`` or ``[``
+is expanded the same way (``.txt`` clouds included); a list is taken in the order given. Each frame's
+outputs are named after its file's stem, so two frames with one stem are refused.
 """
 
 from __future__ import annotations
@@ -16,8 +17,12 @@ from pathlib import Path
 
 from ncflow.errors import InputError
 from ncflow.io.meshes import MESH_SUFFIXES
+from ncflow.io.points import POINT_SUFFIXES
 
-__all__ = ["MAX_FRAMES", "frame_files", "natural_key"]
+__all__ = ["FOLDER_SUFFIXES", "MAX_FRAMES", "frame_files", "natural_key"]
+
+FOLDER_SUFFIXES = MESH_SUFFIXES + (".xyz", ".npy")
+"""The frame files a folder's listing takes."""
 
 MAX_FRAMES = 100_000
 """The most frames one run takes."""
@@ -31,8 +36,8 @@ def natural_key(name: str) -> tuple:
     return tuple((0, int(p), p) if p.isdigit() else (1, 0, p.lower()) for p in _DIGITS.split(name) if p)
 
 
-def _is_mesh(path: Path) -> bool:
-    return path.suffix.lower() in MESH_SUFFIXES and not path.name.startswith(".")
+def _is_mesh(path: Path, suffixes: tuple[str, ...] = FOLDER_SUFFIXES) -> bool:
+    return path.suffix.lower() in suffixes and not path.name.startswith(".")
 
 
 def frame_files(frames: str | os.PathLike | Sequence[str | os.PathLike]) -> list[Path]:
@@ -47,10 +52,14 @@ def frame_files(frames: str | os.PathLike | Sequence[str | os.PathLike]) -> list
         if Path(given).is_dir():
             with os.scandir(given) as it:
                 found = [Path(e.path) for e in it if e.is_file() and _is_mesh(Path(e.name))]
-            what = f"the folder has no mesh files ({', '.join(MESH_SUFFIXES)})"
+            what = f"the folder has no mesh or point-cloud files ({', '.join(FOLDER_SUFFIXES)})"
         elif any(c in given for c in "*?["):
-            found = [Path(p) for p in glob.glob(given) if Path(p).is_file() and _is_mesh(Path(p))]
-            what = "the pattern matches no mesh file"
+            found = [
+                Path(p)
+                for p in glob.glob(given)
+                if Path(p).is_file() and _is_mesh(Path(p), MESH_SUFFIXES + POINT_SUFFIXES)
+            ]
+            what = "the pattern matches no mesh or point-cloud file"
         else:
             found = [Path(given)]
             what = ""

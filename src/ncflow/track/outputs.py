@@ -27,6 +27,7 @@ from ncflow.io.bvh import write_bvh
 from ncflow.io.gltf.document import unique_names
 from ncflow.io.gltf.rig_writer import write_rig_glb
 from ncflow.io.meshes import load_mesh, save_mesh
+from ncflow.io.points import save_target
 from ncflow.skeleton import Skeleton
 from ncflow.track.animation import SequenceMotion, morph_corrections, sequence_motion
 
@@ -132,7 +133,7 @@ def write_sequence_outputs(
     with atomic_path(out / "source.ply") as tmp:
         save_mesh(tmp, source.vertices, source.faces)
     with atomic_path(out / "target.ply") as tmp:
-        save_mesh(tmp, last_target.vertices, last_target.faces)
+        save_target(tmp, last_target.vertices, last_target.faces)
     diag = float(np.linalg.norm(np.ptp(source.vertices, axis=0)))
     errors = key_errors(source.vertices, motion, morphs, registered)
     metrics = _metrics(source, skel, records, ok, config, options, errors / diag, seconds, n_resumed)

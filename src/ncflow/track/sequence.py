@@ -43,6 +43,7 @@ from ncflow.geometry.normalize import fit_normalization
 from ncflow.io.atomic import atomic_path, atomic_write_text, check_output_dir
 from ncflow.io.files import file_sha256, read_json_object
 from ncflow.io.meshes import load_mesh, save_mesh
+from ncflow.io.points import load_target
 from ncflow.matcher.inputs import intake, load_source
 from ncflow.matcher.placement import Placement
 from ncflow.matcher.prepare import suggested_skeleton
@@ -326,7 +327,7 @@ def _resumed(out: Path, path: Path, sha: str, previous, src: Mesh, skel: Skeleto
         run.fix_mode(mode)
         state = load_state(out / "state" / f"{stem}.eqx", skel, run.normalization, run.full, mode)
         reg = load_mesh(out / "registered" / f"{stem}.ply").vertices
-        frame = load_mesh(path).vertices
+        frame = load_target(path).vertices
         pl = Placement(
             np.asarray(rec["placement"]["rotation"], float), np.asarray(rec["placement"]["translation"], float)
         )
@@ -420,7 +421,7 @@ def track_sequence(
         message(f"frame {k + 1}/{len(paths)} {stem}: " + ("matching" if last.start is None else "warm start"))
         t1 = time.perf_counter()
         try:
-            frame = load_mesh(path)
+            frame = load_target(path)
             result, info = _match_frame(src, frame, skel, run, last, lost_ratio, reference(records), quiet, stream)
         except NcflowError as exc:
             records.append(_failed(out, stem, path, sha, last.stem, exc, message))
@@ -439,7 +440,7 @@ def track_sequence(
         raise InputError("no frame could be matched: " + records[0].get("error", "see records/"), paths[0])
     last_ok = next(p for p, r in zip(reversed(paths), reversed(records)) if r["status"] == "ok")
     seconds = time.perf_counter() - t0
-    metrics = write_sequence_outputs(out, src, skel, records, cfg, options, seconds, n_resumed, load_mesh(last_ok))
+    metrics = write_sequence_outputs(out, src, skel, records, cfg, options, seconds, n_resumed, load_target(last_ok))
     return TrackReport(
         out_dir=out,
         n_frames=len(records),

@@ -36,6 +36,7 @@ from ncflow.errors import InputError, NcflowError
 from ncflow.evaluate.metrics import auc, geodesic_errors
 from ncflow.evaluate.plots import source_colors
 from ncflow.geometry.barycentric import surface_points
+from ncflow.geometry.cloud import point_spacing
 from ncflow.geometry.decimate import decimate
 from ncflow.geometry.mesh import Mesh
 from ncflow.io.atomic import atomic_write_bytes, check_output_file
@@ -260,7 +261,7 @@ def view_data(
     ref = source_colors(rest)  # positions in [0, 1] per axis: the colour and checker coordinates
     target_ref = np.clip(surface_points(ref, faces, result.map_face, result.map_bary), 0.0, 1.0)
     src = decimate(rest, faces, max_display_vertices)
-    tgt = decimate(tv, tf, max_display_vertices)
+    tgt_kept, tgt_faces, tgt_pos = target_display(tv, tf, max_display_vertices)
     shown = frames[pick][:, src.kept]
     lo = np.minimum(frames.min(axis=(0, 1)), tv.min(0))
     hi = np.maximum(frames.max(axis=(0, 1)), tv.max(0))
@@ -280,12 +281,12 @@ def view_data(
             "ref": encode_array(np.rint(ref[src.kept] * _Q), "uint16"),
         },
         "target": {
-            "n_vertices": int(tgt.kept.size),
+            "n_vertices": int(tgt_kept.size),
             "n_vertices_original": int(tv.shape[0]),
-            "kept": encode_array(tgt.kept, "uint32"),
-            "faces": _faces(tgt.faces, tgt.kept.size),
-            "positions": encode_array(quantize_positions(tv[tgt.kept], lo, hi), "uint16"),
-            "ref": encode_array(np.rint(target_ref[tgt.kept] * _Q), "uint16"),
+            "kept": encode_array(tgt_kept, "uint32"),
+            "faces": _faces(tgt_faces, tgt_kept.size),
+            "positions": encode_array(quantize_positions(tgt_pos, lo, hi), "uint16"),
+            "ref": encode_array(np.rint(target_ref[tgt_kept] * _Q), "uint16"),
         },
         "skeleton": None,
         "error": None,
@@ -298,11 +299,35 @@ def view_data(
     if errors is not None:
         e = np.asarray(errors, np.float64)
         data["error"] = {
-            "values": encode_array(e[tgt.kept], "float32"),
-            "colors": encode_array(error_colors(e[tgt.kept], tau_max), "uint8"),
+            "values": encode_array(e[tgt_kept], "float32"),
+            "colors": encode_array(error_colors(e[tgt_kept], tau_max), "uint8"),
             **_color_bar(e, tau_max),
         }
     return data
+
+
+_TETRAHEDRON = np.array([[1.0, 1.0, 1.0], [1.0, -1.0, -1.0], [-1.0, 1.0, -1.0], [-1.0, -1.0, 1.0]]) / np.sqrt(3.0)
+_TETRA_FACES = np.array([[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]])
+
+
+def target_display(
+    vertices: Float[np.ndarray, "V 3"], faces: Int[np.ndarray, "F 3"], budget: int
+) -> tuple[Int[np.ndarray, " n"], Int[np.ndarray, "f 3"], Float[np.ndarray, "n 3"]]:
+    """(kept (n,): the target vertex each shown vertex stands for, faces (f, 3), positions (n, 3)) of the
+    target as the page shows it: a mesh decimated to about ``budget`` vertices; a point cloud (no faces)
+    as a small tetrahedron around each point (half the cloud's spacing across; every point while
+    4 × points fits the budget, else an even subset), so that the page draws it as it draws a mesh.
+    """
+    if faces.shape[0]:
+        dec = decimate(vertices, faces, budget)
+        return dec.kept, dec.faces, vertices[dec.kept]
+    n = vertices.shape[0]
+    shown = np.unique(np.linspace(0, n - 1, min(n, max(budget // 4, 1))).round().astype(np.int64))
+    radius = 0.5 * point_spacing(vertices) if n > 3 else 1e-3
+    kept = np.repeat(shown, 4)
+    positions = (vertices[shown][:, None, :] + radius * _TETRAHEDRON[None]).reshape(-1, 3)
+    tri = (_TETRA_FACES[None] + 4 * np.arange(shown.size)[:, None, None]).reshape(-1, 3)
+    return kept, tri, positions
 
 
 # ----------------------------------------------------------------------------------------------
