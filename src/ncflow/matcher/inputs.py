@@ -61,9 +61,15 @@ def load_inputs(source, target, skeleton) -> tuple[Mesh, Mesh | PointCloud, Skel
     return src, _target(target), skel
 
 
+SURFACE_POINTS = 200_000
+"""Most points a cloud's surface is made of (:func:`cloud_surface`); a larger cloud is thinned for it (every
+point is still mapped)."""
+
+
 def cloud_surface(cloud: PointCloud) -> tuple[Mesh, dict]:
     """The surface a point-cloud target is matched through, and what was done to make it: outliers
-    (:func:`~ncflow.geometry.cloud.cloud_outliers`) left out, normals oriented outward (the file's or
+    (:func:`~ncflow.geometry.cloud.cloud_outliers`) left out (and a cloud of more than :data:`SURFACE_POINTS`
+    thinned), normals oriented outward (the file's or
     estimated: :func:`~ncflow.geometry.cloud.oriented_normals`), the implicit surface of the rest
     (:func:`~ncflow.geometry.reconstruct.reconstruct_surface`), open where the scan saw nothing.
 
@@ -75,6 +81,10 @@ def cloud_surface(cloud: PointCloud) -> tuple[Mesh, dict]:
     t0 = time.perf_counter()
     outliers = cloud_outliers(cloud.points)
     keep = ~outliers
+    if keep.sum() > SURFACE_POINTS:  # an even share of the file's order (a scan's rows) is plenty for the surface
+        chosen = np.flatnonzero(keep)
+        keep = np.zeros_like(keep)
+        keep[chosen[np.linspace(0, chosen.size - 1, SURFACE_POINTS).round().astype(np.int64)]] = True
     normals = oriented_normals(cloud, keep)
     spacing = point_spacing(cloud.points[keep])
     vertices, faces = reconstruct_surface(cloud.points[keep], normals[keep], spacing)
