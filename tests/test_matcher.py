@@ -261,6 +261,32 @@ def test_size_check_refuses_another_scale_naming_the_target(pair, k):
         check_sizes(src, Mesh(src.vertices * k, src.faces, "scaled.obj"))
 
 
+def _one_side(mesh, keep_share):
+    """The faces of ``mesh`` whose centres lie on the +x side of a plane leaving about ``keep_share`` of them,
+    and their vertices only (a scan seen from one side, along the capsule's length)."""
+    centres = mesh.vertices[mesh.faces].mean(axis=1)
+    faces = mesh.faces[centres[:, 0] >= np.quantile(centres[:, 0], 1.0 - keep_share)]
+    used, faces = np.unique(faces, return_inverse=True)
+    return Mesh(mesh.vertices[used], faces.reshape(-1, 3), "view.ply")
+
+
+@pytest.mark.parametrize("share", [0.5, 0.2])
+def test_a_view_from_one_side_is_a_partial_target_of_the_same_size_not_another_scale(pair, share):
+    src = pair[0]
+    view = _one_side(src, share)
+    area = size_ratio(src, view) ** 2
+    assert area == pytest.approx(share, abs=0.08)  # what the size check alone would call 0.45-0.7x
+    (note,) = check_sizes(src, view)
+    assert f"shows about {area:.0%} of the source's surface area" in note and "partial view" in note
+
+
+def test_a_partial_view_in_other_units_is_still_refused(pair):
+    src = pair[0]
+    view = _one_side(src, 0.5)
+    with pytest.raises(InputError, match="different units"):
+        check_sizes(src, Mesh(view.vertices * 1000.0, view.faces, "view_mm.ply"))
+
+
 @pytest.mark.parametrize("which", ["target", "source", "both"])
 def test_a_mesh_wound_inside_out_is_matched_wound_as_the_other(pair, which):
     """Against the problem of the pair as given: the target's edge tables (what its measures are

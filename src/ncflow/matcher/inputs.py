@@ -129,6 +129,19 @@ def size_ratio(src: Mesh, tgt: Mesh) -> float:
     return float(np.sqrt(face_areas(tgt.vertices, tgt.faces).sum() / face_areas(src.vertices, src.faces).sum()))
 
 
+def diameter(vertices: np.ndarray) -> float:
+    """The largest distance between two vertices (over the convex hull's; placement-free)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    v = np.asarray(vertices, np.float64)
+    try:
+        v = v[ConvexHull(v).vertices]
+    except (QhullError, ValueError):  # flat or too few points: all of them
+        pass
+    v = v[:4000]
+    return float(max(np.max(np.linalg.norm(v - p, axis=1)) for p in v)) if len(v) else 0.0
+
+
 def check_sizes(src: Mesh, tgt: Mesh) -> list[str]:
     """A warning when the target's :func:`size_ratio` to the source is beyond
     :data:`SIZE_RATIO_WARNING` either way; an :class:`InputError` naming the target beyond
@@ -136,8 +149,19 @@ def check_sizes(src: Mesh, tgt: Mesh) -> list[str]:
     "Normalisation") and matches one character at one scale: a target in other units (millimetres
     against metres, inches against centimetres) would otherwise give a meaningless result without
     a word.
+
+    A partial target (a scan seen from one side, with holes) shows less surface but spans the body:
+    when the target's area is the smaller while its :func:`diameter` is within
+    :data:`SIZE_RATIO_WARNING` of the source's, it is taken for a partial view of one size (a note
+    saying how much it shows), not for another scale.
     """
     ratio = size_ratio(src, tgt)
+    across = diameter(tgt.vertices) / max(diameter(src.vertices), 1e-300)
+    if np.isfinite(ratio) and ratio < 1.0 / SIZE_RATIO_WARNING and max(across, 1.0 / across) <= SIZE_RATIO_WARNING:
+        return [
+            f"the target shows about {ratio**2:.0%} of the source's surface area while spanning {across:.2f}x its "
+            "diameter: taken for a partial view (a scan from one side, with holes) of the same size"
+        ]
     if not np.isfinite(ratio) or max(ratio, 1.0 / ratio) > SIZE_RATIO_LIMIT:
         raise InputError(
             f"the target is {ratio:.3g}x the size of the source {src.name or ''} (the square root of their "
