@@ -5,6 +5,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from ncflow.geometry.normalize import fit_normalization
+from ncflow.matcher.place import close_call
 from ncflow.matcher.placement import Placement, candidate_rotations, place_target, surface_diracs
 from ncflow.synthetic.pairs import make_pair
 
@@ -121,3 +122,22 @@ def test_placement_candidates_leave_out_poor_rigid_fits(pair):
     kept = placement_candidates(s, fs, t, ft, count=6)
     assert not kept[0].moved and np.isclose(kept[0].score, every[0].score)
     assert [c.score for c in kept[1:]] == [c.score for c in every[1:] if c.score >= 0.8 * best]
+
+
+def _turned(degrees, axis=(0.0, 1.0, 0.0)):
+    r = Rotation.from_rotvec(np.radians(degrees) * np.asarray(axis)).as_matrix()
+    return Placement(rotation=r, translation=np.zeros(3), score=0.5, identity_score=0.5, moved=True)
+
+
+@pytest.mark.parametrize(
+    "angles, scores, expected",
+    [
+        ((0, 165), (0.55, 0.547), [0, 1]),  # front and back within 3 %: searched again
+        ((0, 31, 165), (0.5546, 0.5545, 0.5477), [0, 1, 2]),  # every near one, the same facing's too
+        ((0, 165), (0.55, 0.50), []),  # the back clearly better
+        ((0, 30), (0.50, 0.505), []),  # one facing, two nearby turns
+        ((0,), (0.5,), []),
+    ],
+)
+def test_a_close_call_is_two_facings_whose_pose_scores_nearly_tie(angles, scores, expected):
+    assert close_call([_turned(a) for a in angles], list(scores)) == expected

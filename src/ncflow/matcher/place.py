@@ -65,12 +65,36 @@ def searches_pose(config) -> bool:
     return bool(config.pose_search and config.flow.skinning)
 
 
+CLOSE_SCORE = 0.03
+"""Pose scores of two placements within this share of the better one are a close call (:func:`close_call`)."""
+
+CLOSE_ANGLE = 90.0
+"""... when two of them also turn the target this many degrees apart (two facings, not one)."""
+
+
+def close_call(placements: list[Placement], scores: list[float]) -> list[int]:
+    """The placements whose pose scores are within :data:`CLOSE_SCORE` of the best one, when one of them turns
+    the target at least :data:`CLOSE_ANGLE` degrees from the best (the target's front and back nearly tie: one
+    beam search's sampling of Diracs can decide it), else none.
+    """
+    best = int(np.argmin(scores))
+    near = [i for i, s in enumerate(scores) if s - scores[best] <= CLOSE_SCORE * abs(scores[best])]
+
+    def angle(i):
+        relative = placements[best].rotation.T @ placements[i].rotation
+        return float(np.degrees(np.arccos(np.clip((np.trace(relative) - 1.0) / 2.0, -1.0, 1.0))))
+
+    return near if any(angle(i) >= CLOSE_ANGLE for i in near) else []
+
+
 def place_and_pose(src_v, src_f, tgt_v, tgt_f, skeleton: Skeleton, config, message=lambda text: None):
     """The target's placement and the source skeleton's initial pose (normalised coordinates).
 
     With ``placement = "auto"`` and the pose search on (``pose_search`` and ``flow.skinning``), each
     of :func:`~ncflow.matcher.placement.placement_candidates` (the target as given first) gets its
-    own pose search and the lowest articulated score wins; without the search, the best rigid fit
+    own pose search and the lowest articulated score wins (two facings that nearly tie, :func:`close_call`,
+    are searched once more with the next seed's Diracs, each keeping its better pose); without the search,
+    the best rigid fit
     (:func:`~ncflow.matcher.placement.place_target`). Returns (placement, pose search result or None,
     trials, placement seconds, pose-search seconds).
     """
@@ -89,15 +113,25 @@ def place_and_pose(src_v, src_f, tgt_v, tgt_f, skeleton: Skeleton, config, messa
         return placements[0], None, (), t_place, 0.0
     t0 = time.perf_counter()
     message("searching the skeleton pose that explains the target ...")
-    results = search_poses(
-        skeleton,
-        src_v,
-        src_f,
-        [pl.apply(tgt_v) for pl in placements],
-        tgt_f,
-        skinning_width=skinning_width(config, skeleton),
-        seed=config.seed,
-    )
+
+    def search(chosen, seed):
+        return search_poses(
+            skeleton,
+            src_v,
+            src_f,
+            [placements[i].apply(tgt_v) for i in chosen],
+            tgt_f,
+            skinning_width=skinning_width(config, skeleton),
+            seed=seed,
+        )
+
+    results = search(range(len(placements)), config.seed)
+    close = close_call(placements, [r.score for r in results])
+    if close:  # a second look, on other Diracs, for the facings that nearly tie: the better of the two searches
+        message("two facings explain the target almost equally: searching their poses again ...")
+        for i, again in zip(close, search(close, config.seed + 1)):
+            if again.score < results[i].score:
+                results[i] = again
     best = int(np.argmin([r.score for r in results]))
     trials = tuple(
         {"angle_degrees": pl.to_dict()["angle_degrees"], "rigid_score": pl.score, "pose_score": r.score}
