@@ -21,7 +21,6 @@ from ncflow.geometry.cloud import (
     oriented_normals,
     point_spacing,
 )
-from ncflow.geometry.mesh import Mesh
 from ncflow.geometry.reconstruct import reconstruct_surface
 from ncflow.geometry.topology import mesh_topology
 from ncflow.geometry.winding import signed_volume
@@ -30,11 +29,10 @@ from ncflow.io.meshes import save_mesh
 from ncflow.io.points import load_target, save_points
 from ncflow.io.result import read_result
 from ncflow.matcher.prepare import prepare
-from ncflow.skeleton import Skeleton, save_skeleton
-from ncflow.synthetic.shapes import bend, capsule
+from ncflow.skeleton import save_skeleton
 from ncflow.track.frames import frame_files
 from ncflow.view.page import target_display
-from test_defects import small_config
+from test_defects import small_config, small_config_file, tapered_capsule_pair
 
 
 def sphere_points(n, seed=0):
@@ -141,14 +139,8 @@ def test_a_cloud_too_small_flat_or_broken_is_refused_in_one_line_naming_it(tmp_p
 
 
 def _capsule_pair():
-    vs, fs = capsule(radius=0.4, length=3.0, n_around=12, n_along=18)
-    vt, ft = capsule(radius=0.4, length=3.0, n_around=16, n_along=24, diagonal="left")
-    vs[:, :2] *= 1.0 + 0.33 * (vs[:, 2:] + 1.9) / 3.8
-    vt[:, :2] *= 1.0 + 0.33 * (vt[:, 2:] + 1.9) / 3.8
-    skel = Skeleton.from_arrays(np.array([[0, 0, -1.6], [0, 0, 0.0], [0, 0, 1.6]]), np.array([-1, 0, 1]))
-    _, face, bary = closest_points_on_surface(vt, vs, fs)
-    truth = surface_points(vs, fs, face, bary)
-    return Mesh(vs, fs, "source.ply"), (bend(vt, 40.0), truth), skel
+    src, tgt, skel, truth = tapered_capsule_pair(16, 24)
+    return src, (tgt.vertices, truth), skel
 
 
 def test_a_match_against_a_point_cloud_maps_every_point_and_writes_the_cloud_as_the_target(tmp_path, capsys):
@@ -160,11 +152,7 @@ def test_a_match_against_a_point_cloud_maps_every_point_and_writes_the_cloud_as_
     save_mesh(s, src.vertices, src.faces, precision="float64")
     np.savetxt(t, cloud, fmt="%.12g")
     save_skeleton(k, skel)
-    cfg = tmp_path / "cfg.toml"
-    cfg.write_text(
-        "compress = 400\nframes = 3\n[flow]\nwidth = 16\ndepth = 2\ngso_width = 8\ngso_depth = 1\n"
-        "[sampling]\nbone_samples = 8\ntissue_samples = 32\nsurface_edges = 128\n"
-    )
+    cfg = small_config_file(tmp_path)
     out = tmp_path / "out"
     rc = main(["match", str(s), str(t), "--skeleton", str(k), "--out", str(out), "--config", str(cfg), "--steps", "4"])
     err = capsys.readouterr().err

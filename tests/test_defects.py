@@ -53,10 +53,11 @@ def small_config(**overrides):
     return dataclasses.replace(cfg, phases=tuple(dataclasses.replace(p, steps=2, warmup=0) for p in cfg.phases))
 
 
-@pytest.fixture(scope="module")
-def capsules():
+def tapered_capsule_pair(n_around: int = 14, n_along: int = 15):
+    """(source, target bent by 40°, its own triangulation of ``n_around`` × ``n_along``, skeleton, the true source
+    point of every target vertex)."""
     vs, fs = capsule(radius=0.4, length=3.0, n_around=12, n_along=18)
-    vt, ft = capsule(radius=0.4, length=3.0, n_around=14, n_along=15, diagonal="left")
+    vt, ft = capsule(radius=0.4, length=3.0, n_around=n_around, n_along=n_along, diagonal="left")
     # tapered (a third wider at the top), so that no end-to-end turn of the capsule matches it as well
     vs[:, :2] *= 1.0 + 0.33 * (vs[:, 2:] + 1.9) / 3.8
     vt[:, :2] *= 1.0 + 0.33 * (vt[:, 2:] + 1.9) / 3.8
@@ -65,6 +66,11 @@ def capsules():
     _, face, bary = closest_points_on_surface(vt, vs, fs)
     truth = surface_points(vs, fs, face, bary)
     return Mesh(vs, fs, "source.ply"), Mesh(bend(vt, 40.0), ft, "target.ply"), skel, truth
+
+
+@pytest.fixture(scope="module")
+def capsules():
+    return tapered_capsule_pair()
 
 
 @pytest.mark.parametrize("defect", DEFECTS)
@@ -98,6 +104,16 @@ def test_each_defect_of_a_source_is_taken_by_every_step_of_the_setup(capsules, d
     assert problem.centroids.shape[0] > 0
 
 
+def small_config_file(tmp_path):
+    """``small_config``'s networks and samples as a TOML file for the command line."""
+    cfg = tmp_path / "cfg.toml"
+    cfg.write_text(
+        "compress = 400\nframes = 3\n[flow]\nwidth = 16\ndepth = 2\ngso_width = 8\ngso_depth = 1\n"
+        "[sampling]\nbone_samples = 8\ntissue_samples = 32\nsurface_edges = 128\n"
+    )
+    return cfg
+
+
 def _write(tmp_path, name, mesh):
     path = tmp_path / name
     save_mesh(path, mesh.vertices, mesh.faces, precision="float64")
@@ -111,11 +127,7 @@ def test_a_match_on_every_defect_at_once_ends_in_a_result_with_a_row_per_file_ve
     s, t = _write(tmp_path, "source.ply", Mesh(sv, sf)), _write(tmp_path, "target.ply", Mesh(tv, tf))
     k = str(tmp_path / "skeleton.tgf")
     save_skeleton(k, skel)
-    cfg = tmp_path / "cfg.toml"
-    cfg.write_text(
-        "compress = 400\nframes = 3\n[flow]\nwidth = 16\ndepth = 2\ngso_width = 8\ngso_depth = 1\n"
-        "[sampling]\nbone_samples = 8\ntissue_samples = 32\nsurface_edges = 128\n"
-    )
+    cfg = small_config_file(tmp_path)
     out = tmp_path / "out"
     rc = main(["match", s, t, "--skeleton", k, "--out", str(out), "--config", str(cfg), "--steps", "4"])
     err = capsys.readouterr().err
