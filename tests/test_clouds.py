@@ -68,6 +68,13 @@ def test_flying_pixels_are_the_outliers():
     assert found[: len(sphere)].sum() <= 3  # a random sampling has a few sparse spots
 
 
+def test_a_cloud_whose_points_are_each_given_many_times_has_the_same_outliers():
+    p = np.vstack([sphere_points(1000), [[3.0, 0.0, 0.0]]])
+    once = cloud_outliers(p)
+    assert once[-1] and once[:-1].sum() <= 2
+    np.testing.assert_array_equal(cloud_outliers(np.repeat(p, 20, axis=0)), np.repeat(once, 20))
+
+
 def test_estimated_normals_are_the_sphere_s_radial_directions_pointing_out():
     p = sphere_points(2000)
     n = oriented_normals(PointCloud(p))

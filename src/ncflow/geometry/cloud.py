@@ -130,9 +130,9 @@ def _neighbours(points: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
 
 def point_spacing(points: Float[np.ndarray, "N 3"]) -> float:
     """The cloud's typical spacing: the median distance from a point to its third nearest neighbour (about
-    √(area per point) on a surface sampled at random; the nearest one is half that).
+    √(area per point) on a surface sampled at random; the nearest one is half that), repeated points counted once.
     """
-    d, _ = _neighbours(np.asarray(points, np.float64), 3)
+    d, _ = _neighbours(np.unique(np.asarray(points, np.float64), axis=0), 3)
     return float(np.median(d[:, -1]))
 
 
@@ -142,13 +142,14 @@ def cloud_outliers(
     """(N,) True for the outliers: log mean distance to the k nearest neighbours more than ``z`` robust
     deviations (1.4826 × the median absolute deviation) above the median, and that distance more than
     :data:`OUTLIER_FACTOR` × the median's (a regular sampling has a tiny deviation: its cap or seam is no
-    outlier; a scan's border, with neighbours on one side, is about 1.4×).
+    outlier; a scan's border, with neighbours on one side, is about 1.4×). Repeated points count once.
     """
-    d, _ = _neighbours(np.asarray(points, np.float64), k)
+    distinct, back = np.unique(np.asarray(points, np.float64), axis=0, return_inverse=True)
+    d, _ = _neighbours(distinct, k)
     m = np.log(np.maximum(d.mean(axis=1), 1e-300))
     med = np.median(m)
     mad = 1.4826 * np.median(np.abs(m - med))
-    return (m - med) > max(z * mad, np.log(OUTLIER_FACTOR))
+    return ((m - med) > max(z * mad, np.log(OUTLIER_FACTOR)))[back.ravel()]
 
 
 def estimate_normals(points: Float[np.ndarray, "N 3"], k: int = NEIGHBOURS) -> Float[np.ndarray, "N 3"]:
