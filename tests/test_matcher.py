@@ -197,7 +197,7 @@ def test_cli_match_writes_contract_and_is_reproducible(tmp_path, pair, capsys):
 @pytest.mark.parametrize(
     "case, message",
     [
-        ("unreadable", "cannot read mesh"),
+        ("unreadable", "the vertex element must declare"),  # faceless: read as a point cloud
         ("skeleton_outside", "skeleton does not fit"),
         ("skeleton_as_mesh", "unsupported skeleton format"),
         ("degenerate", "none of its"),

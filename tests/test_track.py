@@ -62,7 +62,7 @@ def test_frames_are_listed_in_natural_order(tmp_path):
     (tmp_path / "sub" / "f1.ply").write_text("x")
     with pytest.raises(InputError, match="stems must differ"):
         frame_files([tmp_path / "f1.off", tmp_path / "sub" / "f1.ply"])
-    with pytest.raises(InputError, match="no mesh files"):
+    with pytest.raises(InputError, match="no mesh or point-cloud files"):
         frame_files(_empty(tmp_path))
     with pytest.raises(InputError, match="no such frame"):
         frame_files([tmp_path / "missing.ply"])
