@@ -35,7 +35,7 @@ import numpy as np
 from jaxtyping import Bool, Float
 
 from ncflow.errors import InputError
-from ncflow.geometry.mesh import COORDINATE_LIMIT, SMALLEST_EXTENT
+from ncflow.geometry.mesh import check_extent
 
 NEIGHBOURS = 12
 """Neighbours of a point for its normal, its orientation and its outlier test."""
@@ -98,15 +98,7 @@ def validate_cloud(points: np.ndarray, normals: np.ndarray | None = None, name: 
         raise InputError(
             f"only {distinct} distinct points: a point cloud needs at least {MIN_POINTS} to show a shape", name
         )
-    largest = float(np.abs(p).max())
-    if largest > COORDINATE_LIMIT:
-        raise InputError(
-            f"coordinates as large as {largest:.3g}: beyond ±{COORDINATE_LIMIT:g}; scale the points down", name
-        )
-    extent = np.ptp(p, axis=0)
-    diag = float(np.linalg.norm(extent))
-    if diag < SMALLEST_EXTENT:
-        raise InputError(f"the points span only {diag:.3g}: scale them up", name)
+    diag = check_extent(p, name, "point cloud")
     centred = p - p.mean(axis=0)
     s = np.linalg.svd(centred / diag, compute_uv=False)
     if s[-1] < 1e-6 * s[0] * np.sqrt(p.shape[0]):
@@ -202,6 +194,18 @@ def orient_normals(
     return n
 
 
+def occupancy_grid(points: Float[np.ndarray, "N 3"], h: float, pad: int) -> tuple[np.ndarray, np.ndarray]:
+    """(origin (3,), occupied (I, J, K) bool): a grid of cell ``h`` over the points' box grown by ``pad``
+    cells on every side, the corner nearest to each point marked (corner (i, j, k) at origin + (i, j, k) h).
+    """
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    origin = lo - pad * h
+    shape = np.ceil((hi - lo) / h).astype(int) + 2 * pad + 1
+    occupied = np.zeros(tuple(int(v) for v in shape), bool)
+    occupied[tuple(np.clip(np.rint((points - origin) / h).astype(int), 0, shape - 1).T)] = True
+    return origin, occupied
+
+
 SEAL_CELLS = 200
 """Most grid cells along the longest side of :func:`exterior_signs`' grid."""
 
@@ -223,15 +227,11 @@ def exterior_signs(points: Float[np.ndarray, "N 3"], normals: Float[np.ndarray, 
     from scipy import ndimage
 
     p = np.asarray(points, np.float64)
-    lo, hi = p.min(axis=0), p.max(axis=0)
+    extent = float(np.ptp(p, axis=0).max())
     signs = np.zeros(p.shape[0], np.int8)
     for cell, dilation in SEAL_LEVELS:
-        h = max(cell * spacing, float(np.max(hi - lo)) / SEAL_CELLS)
-        pad = dilation + 3
-        origin = lo - pad * h
-        shape = tuple(int(v) for v in np.ceil((hi - lo) / h).astype(int) + 2 * pad + 1)
-        occupied = np.zeros(shape, bool)
-        occupied[tuple(np.rint((p - origin) / h).astype(int).T)] = True
+        h = max(cell * spacing, extent / SEAL_CELLS)
+        origin, occupied = occupancy_grid(p, h, dilation + 3)
         occupied = ndimage.binary_dilation(occupied, iterations=dilation)
         labels, _ = ndimage.label(~occupied)
         outside = labels == labels[0, 0, 0]
@@ -247,18 +247,26 @@ def exterior_signs(points: Float[np.ndarray, "N 3"], normals: Float[np.ndarray, 
     return np.zeros(p.shape[0], np.int8)
 
 
-def oriented_normals(cloud: PointCloud, keep: Bool[np.ndarray, " N"] | None = None) -> Float[np.ndarray, "N 3"]:
-    """(N, 3) unit normals of ``cloud`` pointing outward: the file's, made consistent, or estimated; points
-    outside ``keep`` (outliers) take no part and get their nearest kept point's normal.
+def file_normals(cloud: PointCloud, keep: Bool[np.ndarray, " N"]) -> bool:
+    """Whether the normals the file gave are used: given, and none of the kept points' of zero length."""
+    return cloud.normals is not None and bool(np.all(np.linalg.norm(cloud.normals[keep], axis=1) > 0))
+
+
+def oriented_normals(
+    cloud: PointCloud, keep: Bool[np.ndarray, " N"] | None = None, spacing: float | None = None
+) -> Float[np.ndarray, "N 3"]:
+    """(N, 3) unit normals of ``cloud`` pointing outward: the file's (:func:`file_normals`), made consistent,
+    or estimated; points outside ``keep`` (outliers) take no part and get their nearest kept point's normal.
+    ``spacing``: the kept points' :func:`point_spacing` when the caller has it.
     """
     p = cloud.points
     keep = np.ones(p.shape[0], bool) if keep is None else np.asarray(keep, bool)
     kept = p[keep]
-    given = cloud.normals is not None and np.all(np.linalg.norm(cloud.normals[keep], axis=1) > 0)
+    given = file_normals(cloud, keep)
     n = cloud.normals[keep] if given else estimate_normals(kept)
     n = orient_normals(kept, n, propagate=not given)
     if not given:
-        signs = exterior_signs(kept, n, point_spacing(kept))
+        signs = exterior_signs(kept, n, point_spacing(kept) if spacing is None else spacing)
         n = n * np.where(signs == 0, 1, signs)[:, None]
     out = np.empty_like(p)
     out[keep] = n

@@ -138,6 +138,28 @@ def _check_finite_and_range(vertices: np.ndarray, faces: np.ndarray, name: str |
         )
 
 
+def check_extent(vertices: Float[np.ndarray, "V 3"], name: str | None = None, what: str = "mesh") -> float:
+    """Raise one :class:`InputError` line when finite coordinates lie beyond ±:data:`COORDINATE_LIMIT` or span
+    less than :data:`SMALLEST_EXTENT` (what ncflow's float32 outputs can hold and resolve); the diagonal
+    of their bounding box. ``what`` names the shape in the message ("mesh", "point cloud").
+    """
+    diag = float(np.linalg.norm(vertices.max(0) - vertices.min(0)))
+    largest = float(np.abs(vertices).max())
+    if largest > COORDINATE_LIMIT:
+        raise InputError(
+            f"coordinates as large as {largest:.3g}: beyond ±{COORDINATE_LIMIT:g}, which ncflow's float32 "
+            f"outputs cannot hold; scale the {what} down",
+            name,
+        )
+    if diag < SMALLEST_EXTENT:
+        raise InputError(
+            f"the {what} is only {diag:.3g} across: below {SMALLEST_EXTENT:g}, which ncflow's float32 outputs "
+            f"cannot resolve; scale the {what} up",
+            name,
+        )
+    return diag
+
+
 def validate_mesh(
     vertices: Float[np.ndarray, "V 3"],
     faces: Int[np.ndarray, "F 3"],
@@ -156,19 +178,7 @@ def validate_mesh(
     diag = float(np.linalg.norm(vertices.max(0) - vertices.min(0)))
     if diag == 0.0:
         raise InputError("all vertices coincide (zero-size mesh)", name)
-    largest = float(np.abs(vertices).max())
-    if largest > COORDINATE_LIMIT:
-        raise InputError(
-            f"coordinates as large as {largest:.3g}: beyond ±{COORDINATE_LIMIT:g}, which ncflow's float32 "
-            "outputs cannot hold; scale the mesh down",
-            name,
-        )
-    if diag < SMALLEST_EXTENT:
-        raise InputError(
-            f"the mesh is only {diag:.3g} across: below {SMALLEST_EXTENT:g}, which ncflow's float32 outputs "
-            "cannot resolve; scale the mesh up",
-            name,
-        )
+    check_extent(vertices, name)
     if not np.any(face_areas(vertices, faces) > AREA_TOL * diag**2):
         raise InputError(f"none of its {faces.shape[0]} faces has an area (every face is degenerate)", name)
 

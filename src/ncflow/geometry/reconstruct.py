@@ -23,6 +23,8 @@ from __future__ import annotations
 import numpy as np
 from jaxtyping import Float, Int
 
+from ncflow.geometry.cloud import occupancy_grid
+
 CELLS = 128
 """Most grid cells along the cloud's longest side."""
 
@@ -61,15 +63,10 @@ def reconstruct_surface(
 
     p = np.asarray(points, np.float64)
     n = np.asarray(normals, np.float64)
-    lo, hi = p.min(axis=0), p.max(axis=0)
-    h = max(CELL * float(spacing), float(np.max(hi - lo)) / cells)
+    h = max(CELL * float(spacing), float(np.ptp(p, axis=0).max()) / cells)
     band_cells = BAND * max(float(spacing), h) / h
-    pad = int(np.ceil(band_cells)) + 2
-    origin = lo - pad * h
-    shape = tuple(int(v) for v in np.ceil((hi - lo) / h).astype(int) + 2 * pad + 1)
-    occupied = np.zeros(shape, bool)
-    cell = np.clip(np.rint((p - origin) / h).astype(int), 0, np.array(shape) - 1)
-    occupied[tuple(cell.T)] = True
+    origin, occupied = occupancy_grid(p, h, int(np.ceil(band_cells)) + 2)
+    shape = occupied.shape
     r = int(np.ceil(band_cells))
     ball = np.linalg.norm(np.mgrid[-r : r + 1, -r : r + 1, -r : r + 1], axis=0) <= band_cells
     band = ndimage.binary_dilation(occupied, structure=ball)

@@ -55,7 +55,6 @@ import numpy as np
 from jaxtyping import Float, Int
 
 from ncflow.errors import InputError, ResultError, first_line
-from ncflow.geometry.mesh import Mesh
 from ncflow.geometry.skeleton import Skeleton
 from ncflow.io.arrays import (
     as_faces,
@@ -73,7 +72,7 @@ from ncflow.io.frames import read_skeleton_frames_json, write_frames, write_skel
 from ncflow.io.gltf.writer import write_animation_glb
 from ncflow.io.ground_truth import read_index_file
 from ncflow.io.meshes import load_mesh, save_mesh
-from ncflow.io.points import is_point_cloud_file, load_target, save_target
+from ncflow.io.points import is_point_cloud_file, load_points, load_target, save_target
 from ncflow.io.skeletons import load_skeleton, save_skeleton
 
 CONTRACT_FILES = (
@@ -389,8 +388,7 @@ def _read_ply(path: Path, cloud_ok: bool = False):
     if not path.is_file():
         raise InputError("missing result file", path)
     if cloud_ok and is_point_cloud_file(path):  # the target of a match against a point cloud
-        cloud = load_target(path)
-        return Mesh(cloud.points, np.zeros((0, 3), np.int64), name=str(path))
+        return load_points(path)
     mesh = load_mesh(path, weld=False, validate=False)
     if not np.all(np.isfinite(mesh.vertices)):
         raise InputError("non-finite vertex coordinates", path)

@@ -20,7 +20,14 @@ import time
 import numpy as np
 
 from ncflow.errors import InputError
-from ncflow.geometry.cloud import PointCloud, cloud_outliers, oriented_normals, point_spacing, validate_cloud
+from ncflow.geometry.cloud import (
+    PointCloud,
+    cloud_outliers,
+    file_normals,
+    oriented_normals,
+    point_spacing,
+    validate_cloud,
+)
 from ncflow.geometry.mesh import Mesh, face_areas, orientation, repaired_mesh, validate_mesh
 from ncflow.geometry.reconstruct import reconstruct_surface
 from ncflow.geometry.repair import Repair
@@ -85,17 +92,16 @@ def cloud_surface(cloud: PointCloud) -> tuple[Mesh, dict]:
         chosen = np.flatnonzero(keep)
         keep = np.zeros_like(keep)
         keep[chosen[np.linspace(0, chosen.size - 1, SURFACE_POINTS).round().astype(np.int64)]] = True
-    normals = oriented_normals(cloud, keep)
     spacing = point_spacing(cloud.points[keep])
+    normals = oriented_normals(cloud, keep, spacing)
     vertices, faces = reconstruct_surface(cloud.points[keep], normals[keep], spacing)
     if faces.shape[0] == 0:
         raise InputError("no surface could be made of the points (too sparse or too noisy?)", cloud.name)
-    given = cloud.normals is not None and bool(np.all(np.linalg.norm(cloud.normals[keep], axis=1) > 0))
     info = {
         "n_points": cloud.n_points,
         "n_outliers": int(outliers.sum()),
         "outliers": outliers,
-        "normals": "file" if given else "estimated",
+        "normals": "file" if file_normals(cloud, keep) else "estimated",
         "spacing": spacing,
         "surface_vertices": int(vertices.shape[0]),
         "surface_faces": int(faces.shape[0]),

@@ -18,6 +18,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from ncflow.io.atomic import computed_once
 from ncflow.io.files import read_npz_arrays
@@ -81,8 +82,7 @@ def close_call(placements: list[Placement], scores: list[float]) -> list[int]:
     near = [i for i, s in enumerate(scores) if s - scores[best] <= CLOSE_SCORE * abs(scores[best])]
 
     def angle(i):
-        relative = placements[best].rotation.T @ placements[i].rotation
-        return float(np.degrees(np.arccos(np.clip((np.trace(relative) - 1.0) / 2.0, -1.0, 1.0))))
+        return float(np.degrees(Rotation.from_matrix(placements[best].rotation.T @ placements[i].rotation).magnitude()))
 
     return near if any(angle(i) >= CLOSE_ANGLE for i in near) else []
 
