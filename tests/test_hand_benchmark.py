@@ -348,3 +348,12 @@ def test_pair_fingers_on_a_procedural_hand(tmp_path):
         assert g[name]["mean"] == pytest.approx(0.0, abs=1e-9)
     assert result["worst"] == "thumb" and result["auc"] == 0.75
     assert result["mean_recomputed"] == pytest.approx(edge.sum() / math.sqrt(area) / finger.size, rel=1e-6)
+
+
+def test_finger_search_counts_the_fingers_beyond_the_bound_never_the_palm():
+    """benchmarks/finger_search.py: a finger is wrong when its largest joint error exceeds the bound; the
+    palm, a finger without joints (None) and one exactly at the bound are not."""
+    finger_search = _load("finger_search")
+    pair = {"fingers": {"index": 0.31, "middle": 0.3, "little": None, "thumb": 1.2, "palm": 2.0}}
+    assert finger_search.wrong_fingers(pair, 0.3) == ["index", "thumb"]
+    assert finger_search.wrong_fingers(pair, 1.5) == []

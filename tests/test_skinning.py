@@ -9,7 +9,7 @@ import pytest
 from ncflow.config import apply_overrides, preset
 from ncflow.errors import InputError
 from ncflow.flow import SkinnedField, bone_velocities, flow_points, make_flow_field, skinning_weights, time_grid
-from ncflow.flow.skinning import core_gate
+from ncflow.flow.skinning import core_gate, surface_skinning_weights
 from ncflow.skeleton import Skeleton, rigid_reference, sample_bones
 from ncflow.skeleton.dualquat import quat_from_rotvec
 from ncflow.skeleton.kinematics import Pose, bone_motions, move_bone_points, rest_pose
@@ -356,3 +356,36 @@ def test_rigid_core_setting():
     np.testing.assert_allclose(np.asarray(params.flow.core), expected, rtol=1e-6)
     off = init_params(jax.random.key(0), apply_overrides(cfg, ["flow.rigid_core=0"]), skel)
     assert off.flow.core is None
+
+
+def test_surface_weights_leave_out_the_bones_in_front_of_the_skin():
+    """Against a brute force in NumPy: each point's nearest point on every bone (a dense sampling of the
+    segment), the bones on the outer side of its normal dropped, a softmax of −distance/width over the rest;
+    a point with every bone in front gets the plain weights. The case it exists for: a fingertip bone resting
+    on a palm's skin does not weigh on that skin, though it is the nearest bone."""
+    rng = np.random.default_rng(4)
+    heads, tails = rng.normal(size=(5, 3)), rng.normal(size=(5, 3))
+    x, n = rng.normal(size=(40, 3)) * 1.5, rng.normal(size=(40, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    width = 0.3
+    args = (jnp.asarray(a) for a in (x, n, heads, tails))
+    got = np.asarray(surface_skinning_weights(*args, width))
+    t = np.linspace(0.0, 1.0, 20001)
+    seg = heads[:, None] + t[None, :, None] * (tails - heads)[:, None]  # (B, T, 3)
+    for i in range(x.shape[0]):
+        d_all = np.linalg.norm(seg[None] - x[i, None, None], axis=-1)[0]  # (B, T)
+        k = d_all.argmin(1)
+        near = seg[np.arange(5), k] - x[i]
+        d = np.linalg.norm(near, axis=1)
+        behind = near @ n[i] <= 0.0
+        keep = behind if behind.any() else np.ones(5, bool)
+        w = np.where(keep, np.exp(-(d - d[keep].min()) / width), 0.0)
+        np.testing.assert_allclose(got[i], w / w.sum(), atol=2e-4)
+    palm_skin, up = np.array([[0.0, 0.0, 0.0]]), np.array([[0.0, 0.0, 1.0]])
+    palm = (np.array([-2.0, 0.0, -0.3]), np.array([2.0, 0.0, -0.3]))  # under the skin, 0.3 deep
+    tip = (np.array([-0.5, 0.0, 0.2]), np.array([0.5, 0.0, 0.2]))  # resting on it, 0.2 above
+    bones = [jnp.asarray(np.stack(p)) for p in zip(palm, tip)]
+    w = np.asarray(surface_skinning_weights(jnp.asarray(palm_skin), jnp.asarray(up), *bones, 0.05))
+    assert w[0, 0] == pytest.approx(1.0) and w[0, 1] < 1e-6
+    plain = np.asarray(skinning_weights(jnp.asarray(palm_skin), *bones, 0.05))
+    assert plain[0, 1] > 0.8  # the plain weights give that skin to the fingertip

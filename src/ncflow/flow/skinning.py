@@ -111,6 +111,32 @@ def skinning_weights(
     return jax.nn.softmax(-_segment_distance(x, heads, tails) / width, axis=-1)
 
 
+def surface_skinning_weights(
+    x: Float[Array, "N 3"],
+    normals: Float[Array, "N 3"],
+    heads: Float[Array, "B 3"],
+    tails: Float[Array, "B 3"],
+    width: float | Float[Array, ""],
+) -> Float[Array, "N B"]:
+    """Bone weights of surface points that see which bones lie under their skin: as
+    :func:`skinning_weights`, but a bone whose nearest point lies in front of the surface at x (on the
+    outer side of its normal: in a fist, the fingertip resting on the palm's skin, nearer that skin than
+    the palm's own bone) is left out, so the skin moves with the part it covers. Where every bone lies
+    in front (a normal turned the wrong way), all are kept alike: the plain weights.
+    """
+    ab = tails - heads
+    along = jnp.einsum("nbk,bk->nb", x[:, None] - heads[None], ab)
+    u = jnp.clip(along / jnp.maximum(jnp.sum(ab * ab, -1), 1e-12), 0.0, 1.0)
+    v = heads[None] + u[..., None] * ab[None] - x[:, None]
+    d = jnp.sqrt(jnp.sum(v * v, -1) + 1e-12)
+    front = jnp.einsum("nbk,nk->nb", v, normals) > 0.0
+    return jax.nn.softmax(-(d + jnp.where(front, FRONT_PENALTY * width, 0.0)) / width, axis=-1)
+
+
+FRONT_PENALTY = 1e3
+"""Added to a bone's distance (× the width) where it lies in front of the skin (:func:`surface_skinning_weights`)."""
+
+
 def core_gate(
     x: Float[Array, "N 3"],
     heads: Float[Array, "B 3"],

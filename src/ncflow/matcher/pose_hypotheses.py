@@ -142,3 +142,67 @@ def exchanged(
             new_world[j] = turn
             out[j] = (new_world[parents[j]].inv() * turn).as_quat(scalar_first=True)
     return out
+
+
+def limb_chains(skeleton: Skeleton, min_joints: int = 2) -> list[np.ndarray]:
+    """The chains the finger-level search re-poses one at a time (fingers off a palm, limbs off a pelvis):
+    from each child of a joint with several children, the joints down a single line of descent that
+    move a bone (each has exactly one child), when there are at least ``min_joints`` of them and the
+    line ends in a leaf. Each chain is an array of joint indices, its first joint first.
+    """
+    parents = np.asarray(skeleton.parents)
+    children = [np.flatnonzero(parents == j) for j in range(skeleton.n_joints)]
+    chains = []
+    for kids in children:
+        if kids.size < 2:
+            continue
+        for k in kids.tolist():
+            chain = []
+            while children[k].size == 1:
+                chain.append(k)
+                k = int(children[k][0])
+            if children[k].size == 0 and len(chain) >= min_joints:
+                chains.append(np.asarray(chain))
+    return chains
+
+
+#: bend angles (degrees) of a chain's first joint and of its second (the rest follow the second in turn)
+CHAIN_BENDS = (-90, -60, -30, 0, 30, 60, 90)
+#: shares of the second joint's bend taken by each further joint
+CHAIN_FOLLOW = (0.5, 1.0)
+#: spreads (degrees) of the first joint about the axis across the bend
+CHAIN_SPREADS = (-30, 0, 30)
+#: bend planes tried (degrees about the chain's direction)
+CHAIN_PLANES = (0, 45, 90, 135)
+
+
+def chain_grid(skeleton: Skeleton, chain: np.ndarray) -> Float[np.ndarray, "H L 4"]:
+    """Local rotations (w, x, y, z) of the joints of ``chain`` (:func:`limb_chains`), each row a whole
+    pose of the chain from rest: every joint bent about one axis across the chain's rest direction (a
+    finger curls in a plane), the plane one of :data:`CHAIN_PLANES`; the first joint by each of
+    :data:`CHAIN_BENDS` and spread by :data:`CHAIN_SPREADS` about the other axis (one swing, no twist), the
+    second by each
+    of :data:`CHAIN_BENDS`, every further one by a share (:data:`CHAIN_FOLLOW`) of the second's.
+    """
+    pos = np.asarray(skeleton.positions, np.float64)
+    parents = np.asarray(skeleton.parents)
+    tip = int(np.flatnonzero(parents == chain[-1])[0])
+    a = pos[tip] - pos[chain[0]]
+    a /= max(np.linalg.norm(a), 1e-12)
+    u = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(a, u)
+    rows = []
+    for plane in np.radians(CHAIN_PLANES):
+        axis, across = np.cos(plane) * u + np.sin(plane) * v, -np.sin(plane) * u + np.cos(plane) * v
+        for first in np.radians(CHAIN_BENDS):
+            for spread in np.radians(CHAIN_SPREADS):
+                q0 = Rotation.from_rotvec(first * axis + spread * across).as_quat(scalar_first=True)
+                for second in np.radians(CHAIN_BENDS):
+                    for follow in CHAIN_FOLLOW if len(chain) > 2 else (1.0,):
+                        rest = [Rotation.from_rotvec(second * follow * axis).as_quat(scalar_first=True)]
+                        rows.append(
+                            [q0, Rotation.from_rotvec(second * axis).as_quat(scalar_first=True)]
+                            + rest * (len(chain) - 2)
+                        )
+    return np.asarray(rows)

@@ -19,7 +19,7 @@ import numpy as np
 import optax
 from jaxtyping import Float, Int
 
-from ncflow.flow.skinning import skinning_weights, swing_only
+from ncflow.flow.skinning import surface_skinning_weights, swing_only
 from ncflow.matcher.placement import surface_diracs
 from ncflow.measures.varifold import Varifold, varifold_inner
 from ncflow.skeleton import Skeleton
@@ -118,6 +118,28 @@ def expand_part(skeleton, src, rotations, translations, hyp, hyp_child, j, c, si
     )
 
 
+def expand_chain(skeleton, src, pose: Pose, chain, hyp, active, sigma, y, moving, mask):
+    """Each row of ``hyp`` (H, L, 4) set as the local rotations of the joints ``chain`` (L,) of one ``pose``,
+    scored (+inf where ``active`` is False), the chain moving only the Diracs ``moving`` (``mask`` 0 on
+    padding): the others are posed once, as in :func:`expand_part`. A chain padded by repeating its last
+    joint (and that joint's rotation) sets that joint twice to one value.
+    """
+    x, w = src
+    yy = varifold_inner(y, y, sigma, 0.5)
+    rest_w = x.weights.at[moving].set(0.0)
+    part, part_w = Varifold(x.centers[moving], x.normals[moving], x.weights[moving] * mask), w[moving]
+    xs = skinned(skeleton, w, x, pose)
+    xs = Varifold(xs.centers, xs.normals, rest_w)
+    const = varifold_inner(xs, joined((xs, 1.0), (y, -2.0)), sigma, 0.5)
+
+    def one(q):
+        m = skinned(skeleton, part_w, part, Pose(pose.rotations.at[chain].set(q), pose.translation))
+        return (const + varifold_inner(m, joined((xs, 2.0), (y, -2.0), (m, 1.0)), sigma, 0.5) + yy) / yy
+
+    inf = jnp.asarray(jnp.inf, DTYPE)
+    return jax.lax.map(lambda qa: jax.lax.cond(qa[1], one, lambda q: inf, qa[0]), (hyp, active))
+
+
 def refine(skeleton, src, pose: Pose, sigma, y, yy, steps: int) -> Pose:
     """``steps`` Adam steps (rate 0.01) of the pose down the distance, its rotations kept unit."""
     opt = optax.adam(0.01)
@@ -162,11 +184,12 @@ class PoseScorer:
         self.skeleton, self.seed, self.n_search, self.n_refine = skeleton, seed, n_search, n_refine
         bones = np.asarray(skeleton.bones)
         pos = np.asarray(skeleton.positions, DTYPE)
-        weights = jax.jit(skinning_weights)  # one program, not one per operation and size
+        weights = jax.jit(surface_skinning_weights)  # one program, not one per operation and size
 
         def source_diracs(n, offset):
             x = surface_diracs(source_vertices, source_faces, n, seed + offset)
-            return x, weights(x.centers, pos[bones[:, 0]], pos[bones[:, 1]], skinning_width).astype(DTYPE)
+            w = weights(x.centers, x.normals, pos[bones[:, 0]], pos[bones[:, 1]], skinning_width)
+            return x, w.astype(DTYPE)
 
         self.coarse, self.fine = source_diracs(n_search, 2), source_diracs(n_refine, 4)
         self.rest = rest_pose(skeleton, DTYPE)
@@ -182,6 +205,7 @@ class PoseScorer:
 
         self.expand = expand  # every beam pose × every local rotation pair of joint j and child c, scored
         self.expand_part = jax.jit(lambda *args: expand_part(skeleton, coarse, *args))
+        self.expand_chain = jax.jit(lambda *args: expand_chain(skeleton, fine, *args))
         # rows not ``active`` (copies of the rest pose filling the fixed shape) are returned as they are
         self.refine_all = jax.jit(
             lambda poses, active, s, y: jax.lax.map(

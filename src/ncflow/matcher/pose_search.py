@@ -48,7 +48,14 @@ import jax
 import numpy as np
 from jaxtyping import Float, Int
 
-from ncflow.matcher.pose_hypotheses import chain_hypotheses, exchangeable_limbs, exchanged, world_frames
+from ncflow.matcher.pose_hypotheses import (
+    chain_grid,
+    chain_hypotheses,
+    exchangeable_limbs,
+    exchanged,
+    limb_chains,
+    world_frames,
+)
 from ncflow.matcher.pose_scorer import DTYPE, PoseScorer
 from ncflow.skeleton import Skeleton
 from ncflow.skeleton.kinematics import Pose
@@ -69,6 +76,10 @@ class PoseSearchResult:
     score: float
     rest_score: float
     hypotheses: int
+
+    def pose_stack(self) -> Pose:
+        """The pose as a stack of one."""
+        return jax.tree.map(lambda a: np.asarray(a)[None], self.pose)
 
     def to_dict(self) -> dict:
         """JSON-ready summary (per-joint rotation angles in degrees)."""
@@ -213,6 +224,9 @@ def search_poses(
     seed: int = 0,
     discrete: bool = True,
     root_turns: bool = False,
+    chain_sigma: float | None = 0.1,
+    chain_sweeps: int = 2,
+    chain_near: float = 0.1,
 ) -> list[PoseSearchResult]:
     """:func:`search_pose` for several placements of one target (the same faces, vertices moved
     rigidly), compiled once; the scores are comparable (the same Diracs, moved, and ⟨Y, Y⟩ is
@@ -244,6 +258,10 @@ def search_poses(
         root_turns: try the local rotations at the root as well (off: the global orientation is
             the placement's, :func:`~ncflow.matcher.placement.placement_candidates`; the refinement
             still turns the root a little).
+        chain_sigma: kernel scale of the chain search (:func:`search_chains`) that re-poses each finger
+            or limb with the others held; None: none.
+        chain_sweeps: passes of the chain search over the chains.
+        chain_near: the chain search runs on the placements whose score is within this share of the best.
     """
     scorer = PoseScorer(
         skeleton,
@@ -257,7 +275,7 @@ def search_poses(
     )
     plan = search_plan(skeleton, scorer, discrete, root_turns, moving_tol)
     n_refined = min(refined, len(searches) * beam)
-    results = []
+    results, targets = [], []
     for target_vertices in target_candidates:
         y_coarse, y_fine = scorer.target_diracs(target_vertices, target_faces)
         found = [
@@ -267,7 +285,73 @@ def search_poses(
         valid = np.concatenate([np.arange(beam) < n for _, n, _ in found] + [[True]])
         refining = (sigmas_refine, n_refined, refined_fine, distinct)
         results.append(refine_pooled(scorer, pooled, valid, y_fine, *refining, 1 + sum(f[2] for f in found)))
+        targets.append((y_fine, pooled, valid))
+    chains = limb_chains(skeleton) if discrete and chain_sigma else []
+    if chains:
+        best = min(r.score for r in results)
+        for i, (y_fine, pooled, valid) in enumerate(targets):
+            if results[i].score <= best + chain_near * abs(best):
+                stack = (pooled, valid, n_refined + 1, float(sigmas_refine[-1]))
+                chain = (chain_sigma, chain_sweeps, moving_tol)
+                results[i] = search_chains(scorer, chains, results[i], y_fine, *chain, *stack)
     return results
+
+
+def search_chains(
+    scorer: PoseScorer,
+    chains: list[np.ndarray],
+    found: PoseSearchResult,
+    y_fine,
+    sigma: float,
+    sweeps: int,
+    moving_tol: float,
+    pooled: Pose,
+    valid,
+    n_rows: int,
+    sigma_score: float,
+) -> PoseSearchResult:
+    """Re-pose each chain (:func:`~ncflow.matcher.pose_hypotheses.limb_chains`: a finger, a limb) of the pose
+    ``found`` with the others held, ``sweeps`` times: every pose of its grid
+    (:func:`~ncflow.matcher.pose_hypotheses.chain_grid`) and its current one scored at the finer ``sigma``,
+    where neighbouring fingers no longer blur into one, the best kept; then the whole pose refined by
+    gradient descent at ``sigma``. The pose is kept when it explains the target better than ``found`` at
+    ``sigma``; its score is then given at ``sigma_score`` (the placements' common scale). ``pooled``,
+    ``valid`` and ``n_rows``: the stacks of :func:`refine_pooled`, whose shapes (one compiled program each)
+    are reused.
+    """
+    skeleton = scorer.skeleton
+    grids = [chain_grid(skeleton, c) for c in chains]
+    n_hyp, n_len = max(g.shape[0] for g in grids) + 1, max(c.size for c in chains)
+    weights = np.asarray(scorer.fine[1])
+    moving = [moving_diracs(skeleton, weights, int(c[0]), moving_tol) for c in chains]
+    size = -(-max(m.size for m in moving) // 32) * 32
+    moved = [
+        jax.device_put((np.resize(m, size).astype(np.int32), (np.arange(size) < m.size).astype(DTYPE))) for m in moving
+    ]
+    start = _host(found.pose)
+    rot, translation = np.array(start.rotations, np.float32), start.translation
+    for _ in range(sweeps):
+        for c, grid, (idx, mask) in zip(chains, grids, moved):
+            hyp = np.concatenate([rot[c][None], grid.astype(np.float32)])
+            n_real = hyp.shape[0]
+            hyp = np.concatenate([hyp, np.repeat(hyp[:1], n_hyp - n_real, 0)])
+            hyp = np.concatenate([hyp, np.repeat(hyp[:, -1:], n_len - c.size, 1)], 1)
+            joints = np.concatenate([c, np.repeat(c[-1:], n_len - c.size)]).astype(np.int32)
+            active = np.arange(n_hyp) < n_real
+            s = scorer.expand_chain(Pose(rot, translation), joints, hyp, active, sigma, y_fine, idx, mask)
+            rot[c] = hyp[int(np.argmin(np.asarray(s))), : c.size]
+    rows = _picked(pooled, np.full(n_rows, valid.size - 1))
+    rows = _stacked(Pose(rot[None], np.asarray(translation)[None]), _picked(rows, slice(1, None)))
+    active = np.arange(n_rows) == 0
+    rows = _host(scorer.refine_all(rows, active, sigma, y_fine))
+    both = _completed(_stacked(_picked(rows, slice(0, 1)), _host(found.pose_stack())), pooled)
+    scored = np.arange(valid.size) < 2
+    at_sigma = np.array(scorer.score_fine(both, scored, sigma, y_fine), np.float64)
+    if not at_sigma[0] < at_sigma[1]:
+        return found
+    final = float(np.asarray(scorer.score_fine(both, scored, sigma_score, y_fine))[0])
+    pose = jax.device_put(_picked(scorer.canonical(_picked(both, slice(0, 1))), 0))
+    return PoseSearchResult(pose, final, found.rest_score, found.hypotheses + sweeps * sum(g.shape[0] for g in grids))
 
 
 def search_plan(skeleton: Skeleton, scorer: PoseScorer, discrete: bool, root_turns: bool, moving_tol: float) -> list:
