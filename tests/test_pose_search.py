@@ -324,7 +324,7 @@ def test_chain_scores_are_the_full_distance_of_each_chain_pose():
     rng = np.random.default_rng(2)
     joints = np.concatenate([[[0.0, 0.0, -1.5]], rng.normal(size=(20, 3)) * [0.3, 0.3, 1.0]])
     skel = Skeleton.from_arrays(joints, parents)
-    scorer = PoseScorer(skel, vs, fs, 0.2, n_search=100, n_refine=200, refine_steps=1, seed=0)
+    scorer = PoseScorer(skel, vs, fs, 0.2, n_search=100, n_refine=200, refine_steps=1, seed=0, skin_aware=True)
     _, y = scorer.target_diracs(bend(vs, 60.0), fs)
     base = Pose(
         jnp.asarray(Rotation.from_rotvec(rng.normal(size=(21, 3)) * 0.3).as_quat(scalar_first=True), jnp.float32),
@@ -372,8 +372,8 @@ def test_finger_search_puts_every_finger_of_a_hand_right():
     normalised units off, the hand about 4 long): with it every finger's joints are within 0.15."""
     (skel, s, fs, t), ft, truth = _procedural_hand_504()
     width = 0.05 * float(np.median(skel.bone_lengths))
-    before = search_pose(skel, s, fs, t, ft, skinning_width=width, chain_sigma=None)
+    before = search_pose(skel, s, fs, t, ft, skinning_width=width)
     assert max(_finger_errors(skel, before.pose, truth)) > 0.4
-    after = search_pose(skel, s, fs, t, ft, skinning_width=width)
+    after = search_pose(skel, s, fs, t, ft, skinning_width=width, chain_sigma=0.1)
     errors = _finger_errors(skel, after.pose, truth)
     assert len(errors) == 5 and max(errors) < 0.15, errors

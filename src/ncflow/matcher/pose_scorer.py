@@ -19,7 +19,7 @@ import numpy as np
 import optax
 from jaxtyping import Float, Int
 
-from ncflow.flow.skinning import surface_skinning_weights, swing_only
+from ncflow.flow.skinning import skinning_weights, surface_skinning_weights, swing_only
 from ncflow.matcher.placement import surface_diracs
 from ncflow.measures.varifold import Varifold, varifold_inner
 from ncflow.skeleton import Skeleton
@@ -167,6 +167,8 @@ class PoseScorer:
         n_refine: Diracs per surface in the refinement (``fine``).
         refine_steps: gradient steps per refinement scale.
         seed: seed of the face sampling.
+        skin_aware: bone weights that leave out the bones in front of a sample's skin
+            (:func:`~ncflow.flow.skinning.surface_skinning_weights`) instead of the field's.
     """
 
     def __init__(
@@ -180,16 +182,19 @@ class PoseScorer:
         n_refine: int,
         refine_steps: int,
         seed: int,
+        skin_aware: bool = False,
     ):
         self.skeleton, self.seed, self.n_search, self.n_refine = skeleton, seed, n_search, n_refine
         bones = np.asarray(skeleton.bones)
         pos = np.asarray(skeleton.positions, DTYPE)
-        weights = jax.jit(surface_skinning_weights)  # one program, not one per operation and size
+        weights = jax.jit(surface_skinning_weights if skin_aware else skinning_weights)  # one program each
 
         def source_diracs(n, offset):
             x = surface_diracs(source_vertices, source_faces, n, seed + offset)
-            w = weights(x.centers, x.normals, pos[bones[:, 0]], pos[bones[:, 1]], skinning_width)
-            return x, w.astype(DTYPE)
+            heads, tails = pos[bones[:, 0]], pos[bones[:, 1]]
+            if skin_aware:
+                return x, weights(x.centers, x.normals, heads, tails, skinning_width).astype(DTYPE)
+            return x, weights(x.centers, heads, tails, skinning_width).astype(DTYPE)
 
         self.coarse, self.fine = source_diracs(n_search, 2), source_diracs(n_refine, 4)
         self.rest = rest_pose(skeleton, DTYPE)
