@@ -35,6 +35,11 @@ descends) for the pose of the source skeleton whose skinned source best matches 
 :func:`search_poses` runs a :func:`search_plan` with :func:`beam_search` per search and refines the pooled
 beams (:func:`refine_pooled`).
 
+Off by default (measured in docs/tuning.md: it puts fingers right in the search, and on MANO pairs the
+training then did worse): ``chain_sigma`` adds :func:`search_chains`, each finger or limb re-posed from a
+grid of planar curls with the others held at a finer σ, and ``skin_aware`` gives the source's samples bone
+weights that leave out the bones in front of their skin.
+
 The ``paper`` preset (no skeleton-driven field) does not use it: there the pose only enters the
 constraints, which are refitted at every step.
 """
