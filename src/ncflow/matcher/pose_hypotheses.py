@@ -180,9 +180,9 @@ def chain_grid(skeleton: Skeleton, chain: np.ndarray) -> Float[np.ndarray, "H L 
     """Local rotations (w, x, y, z) of the joints of ``chain`` (:func:`limb_chains`), each row a whole
     pose of the chain from rest: every joint bent about one axis across the chain's rest direction (a
     finger curls in a plane), the plane one of :data:`CHAIN_PLANES`; the first joint by each of
-    :data:`CHAIN_BENDS` and spread by :data:`CHAIN_SPREADS` about the other axis (one swing, no twist), the
-    second by each
-    of :data:`CHAIN_BENDS`, every further one by a share (:data:`CHAIN_FOLLOW`) of the second's.
+    :data:`CHAIN_BENDS` and spread by :data:`CHAIN_SPREADS` about the other axis (one swing, no twist),
+    the second by each of :data:`CHAIN_BENDS`, every further one by a share (:data:`CHAIN_FOLLOW`) of the
+    second's.
     """
     pos = np.asarray(skeleton.positions, np.float64)
     parents = np.asarray(skeleton.parents)
@@ -199,10 +199,8 @@ def chain_grid(skeleton: Skeleton, chain: np.ndarray) -> Float[np.ndarray, "H L 
             for spread in np.radians(CHAIN_SPREADS):
                 q0 = Rotation.from_rotvec(first * axis + spread * across).as_quat(scalar_first=True)
                 for second in np.radians(CHAIN_BENDS):
+                    q1 = Rotation.from_rotvec(second * axis).as_quat(scalar_first=True)
                     for follow in CHAIN_FOLLOW if len(chain) > 2 else (1.0,):
-                        rest = [Rotation.from_rotvec(second * follow * axis).as_quat(scalar_first=True)]
-                        rows.append(
-                            [q0, Rotation.from_rotvec(second * axis).as_quat(scalar_first=True)]
-                            + rest * (len(chain) - 2)
-                        )
+                        later = Rotation.from_rotvec(second * follow * axis).as_quat(scalar_first=True)
+                        rows.append([q0, q1] + [later] * (len(chain) - 2))
     return np.asarray(rows)

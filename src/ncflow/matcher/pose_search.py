@@ -149,6 +149,18 @@ def moving_diracs(skeleton: Skeleton, weights: Float[np.ndarray, "N B"], joint: 
     return np.flatnonzero(np.asarray(weights)[:, below[parents[1:]]].sum(1) > tol)
 
 
+def _padded_diracs(indices: np.ndarray, size: int):
+    """Dirac indices repeated to ``size`` and their mask (1 on the real ones), on the device: one shape,
+    one compiled program, for every joint or chain.
+    """
+    return jax.device_put((np.resize(indices, size).astype(np.int32), (np.arange(size) < indices.size).astype(DTYPE)))
+
+
+def _padded_size(counts) -> int:
+    """The largest count rounded up to a multiple of 32 (0 when none)."""
+    return -(-max(counts, default=0) // 32) * 32
+
+
 def _exchange_step(skeleton, beams: Pose, n_real: int, limbs, sigma, score, y, min_move: float = 0.25):
     """Each real beam pose and its copy with ``limbs`` exchanged
     (:func:`~ncflow.matcher.pose_hypotheses.exchanged`), scored; the best ``beam`` kept. A copy whose
@@ -335,10 +347,8 @@ def search_chains(
     n_hyp, n_len = max(g.shape[0] for g in grids) + 1, max(c.size for c in chains)
     weights = np.asarray(scorer.fine[1])
     moving = [moving_diracs(skeleton, weights, int(c[0]), moving_tol) for c in chains]
-    size = -(-max(m.size for m in moving) // 32) * 32
-    moved = [
-        jax.device_put((np.resize(m, size).astype(np.int32), (np.arange(size) < m.size).astype(DTYPE))) for m in moving
-    ]
+    size = _padded_size(m.size for m in moving)
+    moved = [_padded_diracs(m, size) for m in moving]
     start = _host(found.pose)
     rot, translation = np.array(start.rotations, np.float32), start.translation
     for _ in range(sweeps):
@@ -386,7 +396,7 @@ def search_plan(skeleton: Skeleton, scorer: PoseScorer, discrete: bool, root_tur
     bone_weights = np.asarray(scorer.coarse[1])  # read back once, not once per joint
     moving = {j: moving_diracs(skeleton, bone_weights, j, moving_tol) for j, *_ in searched}
     few = [m.size for m in moving.values() if 0 < m.size <= scorer.coarse[0].size // 2]
-    size = -(-max(few, default=0) // 32) * 32  # one size for all: one compiled program
+    size = _padded_size(few)  # one size for all: one compiled program
 
     def part(j):
         """The Diracs joint j moves, padded to ``size``, or None where they are over half of all (the full
@@ -395,7 +405,7 @@ def search_plan(skeleton: Skeleton, scorer: PoseScorer, discrete: bool, root_tur
         idx = moving[j]
         if not 0 < idx.size <= size:
             return None
-        return jax.device_put((np.resize(idx, size).astype(np.int32), (np.arange(size) < idx.size).astype(DTYPE)))
+        return _padded_diracs(idx, size)
 
     searched = [(j, h.shape[0], padded(h), padded(hc), c, part(j)) for j, h, hc, c in searched]
     depth = skeleton.depth
