@@ -94,6 +94,13 @@ def swing_only(skeleton: Skeleton, pose: Pose) -> Pose:
 
 
 def _segment_distance(x: Float[Array, "N 3"], a: Float[Array, "B 3"], b: Float[Array, "B 3"]) -> Float[Array, "N B"]:
+    return _segment_projection(x, a, b)[1]
+
+
+def _segment_projection(x: Float[Array, "N 3"], a: Float[Array, "B 3"], b: Float[Array, "B 3"]):
+    """(u, d), both (N, B): where along each segment a–b its nearest point to x lies (0 at a, 1 at b) and
+    how far it is.
+    """
     # (N, B) arrays only: the point-bone products come from two matrix products
     ab = b - a
     ab2 = jnp.maximum(jnp.sum(ab * ab, -1), 1e-12)
@@ -101,7 +108,7 @@ def _segment_distance(x: Float[Array, "N 3"], a: Float[Array, "B 3"], b: Float[A
     ap2 = jnp.sum(x * x, -1)[:, None] - 2.0 * _mm(x, a.T) + jnp.sum(a * a, -1)  # |x − a|²
     u = jnp.clip(ap_ab / ab2, 0.0, 1.0)
     d2 = ap2 - 2.0 * u * ap_ab + u * u * ab2
-    return jnp.sqrt(jnp.maximum(d2, 0.0) + 1e-12)
+    return u, jnp.sqrt(jnp.maximum(d2, 0.0) + 1e-12)
 
 
 def skinning_weights(
@@ -124,12 +131,9 @@ def surface_skinning_weights(
     the palm's own bone) is left out, so the skin moves with the part it covers. Where every bone lies
     in front (a normal turned the wrong way), all are kept alike: the plain weights.
     """
-    ab = tails - heads
-    along = jnp.einsum("nbk,bk->nb", x[:, None] - heads[None], ab)
-    u = jnp.clip(along / jnp.maximum(jnp.sum(ab * ab, -1), 1e-12), 0.0, 1.0)
-    v = heads[None] + u[..., None] * ab[None] - x[:, None]
-    d = jnp.sqrt(jnp.sum(v * v, -1) + 1e-12)
-    front = jnp.einsum("nbk,nk->nb", v, normals) > 0.0
+    u, d = _segment_projection(x, heads, tails)
+    # (nearest point − x)·n = a·n + u (b − a)·n − x·n, in (N, B) products as the distance is
+    front = _mm(normals, heads.T) + u * _mm(normals, (tails - heads).T) - jnp.sum(x * normals, -1)[:, None] > 0.0
     return jax.nn.softmax(-(d + jnp.where(front, FRONT_PENALTY * width, 0.0)) / width, axis=-1)
 
 
