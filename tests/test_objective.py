@@ -19,7 +19,7 @@ from ncflow.matcher.place import place
 from ncflow.matcher.prepare import DTYPE, prepare
 from ncflow.matcher.stages import build_stages
 from ncflow.matcher.targets import target_measures
-from ncflow.matcher.train import build_optimizer, init_params, make_step, parameter_labels
+from ncflow.matcher.train import build_optimizer, held_phases, init_params, make_step, parameter_labels
 from ncflow.optim.mdmm import Multipliers, multiplier_rate, update_multipliers
 from ncflow.skeleton import Skeleton
 from ncflow.skeleton.kinematics import rest_pose
@@ -187,6 +187,7 @@ def test_step_runs_the_multiplier_rule_of_optim_mdmm(problem):
         jnp.asarray(0.5, DTYPE),
         jnp.asarray(yy, DTYPE),
         cw,
+        jnp.asarray(1.0, DTYPE),
         jnp.asarray(1e-3, DTYPE),
         jnp.asarray(0.5, DTYPE),
         jax.random.key(3),
@@ -234,3 +235,53 @@ def test_optimizer_scales_the_pose_through_multi_transform(problem):
             np.testing.assert_allclose(b, 4.0 * a, rtol=1e-6)
         else:
             np.testing.assert_array_equal(a, b)
+
+
+def test_a_pose_rate_of_zero_holds_the_pose_and_nothing_else(problem):
+    """The same step from the same state with pose rate 1 and 0: with 0 the skeleton-driven field's pose
+    is exactly where it was, with 1 it moved; every network leaf moves identically in both."""
+    cfg, arrays, st, target, yy, s, params = _first_stage(problem)
+    opt = build_optimizer(cfg)
+    step = make_step(arrays, s, opt, cfg.constraints)
+    mult = Multipliers(jnp.zeros((2, arrays.skeleton.n_bones), DTYPE), jnp.zeros((2, arrays.skeleton.n_bones), DTYPE))
+    state = opt.init(eqx.filter(params, eqx.is_inexact_array))
+    stage = ((target,), jnp.asarray(0, jnp.int32), jnp.asarray(st.sigma, DTYPE), jnp.asarray(0.5, DTYPE))
+    rest = (jnp.asarray(yy, DTYPE), jnp.asarray([1.0, 1.0], DTYPE))
+    after = {}
+    for rate in (0.0, 1.0):
+        after[rate] = step(
+            params,
+            rest_pose(arrays.skeleton, DTYPE),
+            state,
+            mult,
+            *stage,
+            *rest,
+            jnp.asarray(rate, DTYPE),
+            jnp.asarray(1e-2, DTYPE),
+            jnp.asarray(0.5, DTYPE),
+            jax.random.key(3),
+        )[0]
+    before_pose = jax.tree_util.tree_leaves(params.flow.pose)
+    for a, b in zip(jax.tree_util.tree_leaves(after[0.0].flow.pose), before_pose, strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    moved = [
+        np.abs(np.asarray(a) - np.asarray(b)).max()
+        for a, b in zip(jax.tree_util.tree_leaves(after[1.0].flow.pose), before_pose, strict=True)
+    ]
+    assert max(moved) > 1e-4
+    for a, b in zip(
+        jax.tree_util.tree_leaves(after[0.0].flow.residual),
+        jax.tree_util.tree_leaves(after[1.0].flow.residual),
+        strict=True,
+    ):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_the_pose_is_held_in_the_first_phase_only_where_the_limbs_touch():
+    cfg = preset("fast")
+    assert len(cfg.phases) == 2
+    assert held_phases(cfg, "surface") == (0,)
+    assert held_phases(cfg, "current") == () and held_phases(cfg, "start") == ()
+    assert held_phases(apply_overrides(cfg, ["flow.hold_contact_pose=false"]), "surface") == ()
+    one = dataclasses.replace(cfg, phases=cfg.phases[1:])  # a warm frame of a track: one phase, never held
+    assert held_phases(one, "surface") == ()

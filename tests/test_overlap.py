@@ -8,7 +8,8 @@ import trimesh
 
 from ncflow.config import apply_overrides, preset
 from ncflow.geometry.overlap import DEFAULT_OFFSET, self_overlap
-from ncflow.matcher.prepare import AUTO_OVERLAP, skinning_weight_mode
+from ncflow.matcher.prepare import AUTO_CONTACT, AUTO_OVERLAP, skinning_weight_mode
+from ncflow.skeleton import Skeleton
 
 
 def _box(lo, hi, subdivisions=3):
@@ -89,7 +90,13 @@ def test_auto_weights_take_the_start_when_only_the_target_passes_through_itself(
     assert skinning_weight_mode(cfg, *apart, *apart)["mode"] == "current"
     # a fixed setting is used as it is, without measuring
     fixed = skinning_weight_mode(apply_overrides(cfg, ["flow.skinning_weights=current"]), *apart, *through)
-    assert fixed == {"setting": "current", "mode": "current", "source_overlap": None, "target_overlap": None}
+    assert fixed == {
+        "setting": "current",
+        "mode": "current",
+        "source_contact": None,
+        "source_overlap": None,
+        "target_overlap": None,
+    }
     paper = dataclasses.replace(cfg, flow=dataclasses.replace(cfg.flow, skinning=False))
     assert skinning_weight_mode(paper, *apart, *through)["mode"] == "current"
     with pytest.raises(Exception, match="skinning_weights"):
@@ -105,3 +112,38 @@ def test_a_strided_subset_of_the_faces_stands_for_them_all():
     part = self_overlap(v, f, max_vertices=10_000, max_pairs=(f.shape[0] + 12) * f.shape[0] // 10)
     assert part != full  # the subset path ran
     assert part == pytest.approx(full, abs=0.05)
+
+
+def _palm_and_finger(lift):
+    """A palm (box) with its bone 0.3 under its top, and a finger (box) lying ``lift`` above the palm's
+    top with its bone along its middle; the finger hangs off the palm's far end by two bones, so that its
+    bone is three joints from the palm's (a curled finger's tip and its palm bone)."""
+    palm = _box([0, 0, 0], [2, 1, 0.6], 2)
+    finger = _box([0.5, 0.3, 0.6 + lift], [1.5, 0.7, 0.8 + lift], 2)
+    z = 0.7 + lift
+    joints = [[0, 0.5, 0.3], [2, 0.5, 0.3], [2, 0.5, z], [1.6, 0.5, z], [0.5, 0.5, z]]
+    skel = Skeleton.from_arrays(joints, [-1, 0, 1, 2, 3])
+    return (*_union(palm, finger), skel)
+
+
+def test_auto_weights_see_the_skin_when_the_source_limbs_touch():
+    """A finger resting on the palm: the palm's top skin lies nearer the finger's bone than its own, in
+    front of it: the skin-aware weights of the start ("surface"), whatever the target; lifted clear of the
+    palm, the rule of the overlaps as before."""
+    cfg = preset("fast")
+    v, f, skel = _palm_and_finger(0.02)
+    apart_v, apart_f, apart_skel = _palm_and_finger(1.0)
+    got = skinning_weight_mode(cfg, v, f, apart_v, apart_f, skel)
+    assert got["mode"] == "surface" and got["source_contact"] > AUTO_CONTACT
+    assert got["source_overlap"] is None  # decided before the overlaps are measured
+    clear = skinning_weight_mode(cfg, apart_v, apart_f, v, f, apart_skel)
+    assert clear["mode"] == "current" and clear["source_contact"] < 0.005
+    # the share is the palm's top under and beside the finger: about its area over the whole, not less
+    palm_top, total = 2.0 * 1.0, 2 * (2 * 1 + 2 * 0.6 + 1 * 0.6) + 2 * (1 * 0.4 + 1 * 0.2 + 0.4 * 0.2)
+    assert 0.4 * 1.0 / total < got["source_contact"] < palm_top / total
+    # the same bone over the palm two joints from the palm's (a neighbour in the limb, not another limb)
+    near = Skeleton.from_arrays(np.delete(skel.positions, 3, axis=0), [-1, 0, 1, 2])
+    assert near.bone_hops[2, 0] == 2
+    assert skinning_weight_mode(cfg, v, f, apart_v, apart_f, near)["source_contact"] == 0.0
+    fixed = skinning_weight_mode(apply_overrides(cfg, ["flow.skinning_weights=start"]), v, f, apart_v, apart_f, skel)
+    assert fixed["mode"] == "start" and fixed["source_contact"] is None

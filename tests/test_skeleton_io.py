@@ -268,3 +268,36 @@ def test_cli_bad_file_exits_2_with_one_line(tmp_path, capsys):
     assert err.startswith("ncflow skeleton: error:") and str(p) in err and "no root" in err
     assert main(["skeleton", "convert", str(p), str(tmp_path / "x.obj")]) == 2
     assert ".tgf or .json" in capsys.readouterr().err
+
+
+def test_bone_hops_against_a_walk_over_the_joints():
+    """Joints between two bones, against a breadth-first walk over joints (a bone's walk starts at both of
+    its ends; the hops to another bone are the fewest joints stepped to reach one of its ends, plus one)."""
+    rng = np.random.default_rng(3)
+    parents = np.array([-1] + [int(rng.integers(0, j)) for j in range(1, 15)])
+    skel = Skeleton.from_arrays(rng.normal(size=(15, 3)), parents)
+    neighbours = [set() for _ in range(15)]
+    for j in range(1, 15):
+        neighbours[j].add(int(parents[j]))
+        neighbours[int(parents[j])].add(j)
+
+    def joint_steps(starts):
+        dist, frontier = {s: 0 for s in starts}, list(starts)
+        while frontier:
+            nxt = []
+            for j in frontier:
+                for k in neighbours[j]:
+                    if k not in dist:
+                        dist[k] = dist[j] + 1
+                        nxt.append(k)
+            frontier = nxt
+        return dist
+
+    bones, hops = skel.bones, skel.bone_hops
+    for a in range(skel.n_bones):
+        steps = joint_steps(set(bones[a]))
+        for b in range(skel.n_bones):
+            expected = 0 if a == b else 1 + min(steps[int(j)] for j in bones[b])
+            assert hops[a, b] == expected, (a, b)
+    chain = Skeleton.from_arrays(np.zeros((4, 3)) + np.arange(4)[:, None], [-1, 0, 1, 2])
+    np.testing.assert_array_equal(chain.bone_hops, [[0, 1, 2], [1, 0, 1], [2, 1, 0]])

@@ -9,7 +9,7 @@ import pytest
 from ncflow.config import apply_overrides, preset
 from ncflow.errors import InputError
 from ncflow.flow import SkinnedField, bone_velocities, flow_points, make_flow_field, skinning_weights, time_grid
-from ncflow.flow.skinning import core_gate, surface_skinning_weights
+from ncflow.flow.skinning import core_gate, skin_contact, surface_skinning_weights
 from ncflow.skeleton import Skeleton, rigid_reference, sample_bones
 from ncflow.skeleton.dualquat import quat_from_rotvec
 from ncflow.skeleton.kinematics import Pose, bone_motions, move_bone_points, rest_pose
@@ -151,20 +151,24 @@ def test_start_weights_let_a_folding_bone_reach_its_parent():
     assert miss["current"] > 2.5e-2 and miss["current"] > 5 * miss["start"], miss  # taken over near the end
 
 
-@pytest.mark.parametrize("mode", ["start", "current"])
+@pytest.mark.parametrize("mode", ["start", "current", "surface"])
 def test_skinned_flow_matches_an_independent_ode_solution(mode):
     """The flow of the articulated part against scipy's adaptive RK45 on dx/dt = Σ_b w_b ξ_b(t)(x),
-    with w_b taken at the start x(0), or at the current x(t) (the field's own weight function).
+    with w_b taken at the start x(0) (with the normals there: "surface"), or at the current x(t) (the
+    field's own weight function).
     """
     from scipy.integrate import solve_ivp
 
     skel, pose = _skeleton(), _pose(_skeleton())
     field = SkinnedField(_residual(alpha=0.0), skel, pose, width=0.3, dtype=jnp.float64, weight_mode=mode)
     x0 = np.array([[0.1, 0.05, 1.0], [0.0, 0.3, 1.9], [0.5, -0.1, 1.1], [0.05, 0.0, 0.4]])  # near joints
-    rest = skinning_weights(
-        jnp.asarray(x0), jnp.asarray(POSITIONS[skel.bones[:, 0]]), jnp.asarray(POSITIONS[skel.bones[:, 1]]), 0.3
-    )
+    n0 = np.array([[-1.0, 0, 0], [0, 0, 1.0], [-1.0, 0, 0], [0, 1.0, 0]])
+    bones = jnp.asarray(POSITIONS[skel.bones[:, 0]]), jnp.asarray(POSITIONS[skel.bones[:, 1]])
+    rest = skinning_weights(jnp.asarray(x0), *bones, 0.3)
     assert np.all(np.asarray(rest).max(1) < 0.95)  # the test exercises blending
+    if mode == "surface":
+        plain, rest = rest, surface_skinning_weights(jnp.asarray(x0), jnp.asarray(n0), *bones, 0.3)
+        assert np.abs(np.asarray(rest) - np.asarray(plain)).max() > 0.3  # the normals change the weights
 
     # compiled once: the adaptive solver calls them thousands of times
     motion = jax.jit(lambda t: bone_velocities(skel, field.swing_pose(), t))
@@ -173,12 +177,12 @@ def test_skinned_flow_matches_an_independent_ode_solution(mode):
     def rhs(t, y):
         x = y.reshape(-1, 3)
         r, c, dr, dc = (np.asarray(a) for a in motion(t))
-        w = np.asarray(rest) if mode == "start" else np.asarray(weights(jnp.asarray(x), t))
+        w = np.asarray(rest) if mode != "current" else np.asarray(weights(jnp.asarray(x), t))
         xi = np.einsum("bij,bkj,nbk->nbi", dr, r, x[:, None, :] - c[None]) + dc[None]  # (N, B, 3) bone velocities
         return np.einsum("nb,nbi->ni", w, xi).reshape(-1)
 
     ref = solve_ivp(rhs, (0.0, 1.0), x0.reshape(-1), rtol=1e-9, atol=1e-11).y[:, -1].reshape(-1, 3)
-    ends = [jax.jit(lambda x, n=n: flow_points(field, x, n)[-1])(jnp.asarray(x0)) for n in (20, 40)]
+    ends = [jax.jit(lambda x, n=n: flow_points(field, x, n, normals=n0)[-1])(jnp.asarray(x0)) for n in (20, 40)]
     errors = [float(np.abs(np.asarray(end) - ref).max()) for end in ends]
     assert errors[0] < 5e-3, errors
     assert errors[1] < errors[0] / 3, errors  # second order: the error is the integrator's
@@ -389,3 +393,50 @@ def test_surface_weights_leave_out_the_bones_in_front_of_the_skin():
     assert w[0, 0] == pytest.approx(1.0) and w[0, 1] < 1e-6
     plain = np.asarray(skinning_weights(jnp.asarray(palm_skin), *bones, 0.05))
     assert plain[0, 1] > 0.8  # the plain weights give that skin to the fingertip
+
+
+def test_surface_weights_keep_the_skin_under_a_resting_fingertip_on_its_own_bone():
+    """A fist in miniature: a palm bone 0.3 under the skin z = 0, a fingertip bone resting 0.2 above it.
+    When the finger straightens, the palm's skin stays where its own (unmoving) bone holds it with the
+    skin-aware weights of the start; the plain weights give it to the fingertip, which carries it off. Points
+    without a normal (zero rows) take the plain weights, and a chunked flow gives the same as one piece.
+    """
+    skel = Skeleton.from_arrays([[0, 0, -0.3], [2.0, 0, -0.3], [2.0, 0, 0.2], [1.0, 0, 0.2]], [-1, 0, 1, 2])
+    one = jnp.asarray([1.0, 0, 0, 0])
+    pose = Pose(jnp.stack([one, one, _turn(90), one]), jnp.zeros(3))
+    skin = np.array([[1.0, 0.0, 0.0], [1.3, 0.05, 0.0]])
+    up = np.array([[0.0, 0, 1.0], [0.0, 0, 1.0]])
+    ends = {}
+    for mode, normals in (("surface", up), ("surface", np.zeros_like(up)), ("start", up)):
+        field = SkinnedField(_residual(alpha=0.0), skel, pose, width=0.05, dtype=jnp.float64, weight_mode=mode)
+        ends[mode, normals.any()] = np.asarray(flow_points(field, jnp.asarray(skin), 20, normals=normals)[-1])
+    np.testing.assert_allclose(ends["surface", True], skin, atol=1e-9)  # the palm does not move
+    assert np.linalg.norm(ends["start", True] - skin, axis=1).min() > 0.5  # carried off by the fingertip
+    np.testing.assert_allclose(ends["surface", False], ends["start", True], atol=1e-12)
+    field = SkinnedField(_residual(alpha=0.3), skel, pose, width=0.05, dtype=jnp.float64, weight_mode="surface")
+    x = np.random.default_rng(1).normal(size=(37, 3)) * 0.5
+    n = np.random.default_rng(2).normal(size=(37, 3))
+    whole = np.asarray(flow_points(field, jnp.asarray(x), 10, normals=n))
+    chunked = np.asarray(flow_points(field, jnp.asarray(x), 10, normals=n, chunk_size=8))
+    np.testing.assert_allclose(chunked, whole, atol=1e-12)
+
+
+def test_skin_contact_against_a_brute_force():
+    """The share of the weight whose nearest bone (a dense sampling of each segment) is in front of its
+    skin while another bone lies behind it (where every bone is in front the weights stay the plain ones)."""
+    rng = np.random.default_rng(7)
+    heads, tails = rng.normal(size=(4, 3)), rng.normal(size=(4, 3))
+    x, n = rng.normal(size=(300, 3)) * 1.5, rng.normal(size=(300, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    w = rng.uniform(0.1, 1.0, size=300)
+    t = np.linspace(0.0, 1.0, 4001)
+    seg = heads[:, None] + t[None, :, None] * (tails - heads)[:, None]  # (B, T, 3)
+    moved = np.zeros(300, bool)
+    for i in range(300):
+        d_all = np.linalg.norm(seg - x[i], axis=-1)  # (B, T)
+        near = seg[np.arange(4), d_all.argmin(1)] - x[i]
+        front = near @ n[i] > 0.0
+        moved[i] = front[np.linalg.norm(near, axis=1).argmin()] and not front.all()
+    expected = float(w @ moved / w.sum())
+    assert 0.05 < expected < 0.95  # the draw exercises both cases
+    assert skin_contact(x, n, w, heads, tails) == pytest.approx(expected, abs=2.0 / 300)

@@ -290,3 +290,11 @@ def test_skeleton_weights_go_to_the_joint_that_moves_the_bone():
     ref = np.zeros((points.shape[0], 4))
     np.add.at(ref.T, parents[1:], soft.T)
     np.testing.assert_allclose(w, ref, atol=1e-5)  # median bone length is 1: τ = 0.05
+    # with the skin's normals: a bone in front of the skin is left out (the match's "surface" weights)
+    up = np.tile([0.0, 1.0, 0.0], (4, 1))
+    np.testing.assert_allclose(skeleton_weights(points, joints, parents, 0.05, up), w, atol=1e-6)  # all behind
+    down = up.copy()
+    down[1] = [0.0, -1.0, 0.0]  # point 1 faces bone (1→2) from above: that bone is in front of its skin
+    seen = skeleton_weights(points, joints, parents, 0.05, down)
+    assert w[1, 1] > 0.99 and seen[1, 0] > 0.99  # the only bone not in front, (0→3), moves with joint 0
+    np.testing.assert_allclose(np.delete(seen, 1, axis=0), np.delete(w, 1, axis=0), atol=1e-6)

@@ -97,11 +97,16 @@ class FlowConfig:
     ``skinning_width`` is the width τ of its bone weights as a fraction of the median bone length;
     ``skinning_weights`` is where a point's bone weights are taken: ``"current"`` (its current
     place: a flow of space, a diffeomorphism), ``"start"`` (its starting place: limbs can meet and
-    pass through each other, as the fingertips and palm of captured fists do) or ``"auto"``
-    (``"start"`` when the target passes through itself over more of its area than the source does,
-    :func:`ncflow.matcher.prepare.skinning_weight_mode`);
+    pass through each other, as the fingertips and palm of captured fists do), ``"surface"`` (as
+    ``"start"``, from the bones under the skin there: a bone in front of the skin is left out, so the
+    palm under a fist's fingertips stays with the palm) or ``"auto"`` (``"surface"`` when the source's
+    limbs touch, ``"start"`` when the target passes through itself over more of its area than the
+    source does, :func:`ncflow.matcher.prepare.skinning_weight_mode`);
     ``pose_lr_scale`` multiplies the learning rate of that pose (its quaternions take sign-like
     steps of about lr each, too slow for a 100° joint in a few hundred steps at the flow's rate);
+    ``hold_contact_pose`` holds that pose at the pose search's during the first phase when the source's
+    limbs touch (weights ``"surface"``): at its coarse σ touching fingers merge in the data term
+    (:func:`ncflow.matcher.train.held_phases`);
     ``rigid_core`` (with ``skinning``; 0: off) fades the Flow-Net out around every bone, so that the
     bone samples (within ``sampling.bone_radius`` of the bone's axis) move with the skeleton alone and
     the bones stay rigid by construction: the Flow-Net's velocity is scaled by a smoothstep from 0 at
@@ -114,9 +119,12 @@ class FlowConfig:
     skinning: bool = setting(True)
     skinning_width: float = setting(0.05, above=0, message=POSITIVE)
     skinning_weights: str = setting(
-        "auto", choices=("auto", "current", "start"), message="{name} must be 'auto', 'current' or 'start'"
+        "auto",
+        choices=("auto", "current", "start", "surface"),
+        message="{name} must be 'auto', 'current', 'start' or 'surface'",
     )
     pose_lr_scale: float = setting(5.0, lo=0, message=NON_NEGATIVE)
+    hold_contact_pose: bool = setting(True)
     rigid_core: float = setting(1.0, lo=0, message=NON_NEGATIVE)
     n_times: int = setting(10, lo=2, hi=100_000, message="{name} must be at least 2")
     gso_width: int = setting(32, lo=1, hi=1 << 16)

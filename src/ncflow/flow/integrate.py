@@ -29,7 +29,7 @@ from collections.abc import Callable
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from ncflow.jit.buckets import pad_points
 
@@ -44,7 +44,11 @@ def time_grid(n_times: int = 10, dtype=jnp.float32) -> Float[Array, " T"]:
 
 
 def integrate(
-    field: Field, x0: Float[Array, "N 3"], n_times: int = 10, checkpoint: bool = False
+    field: Field,
+    x0: Float[Array, "N 3"],
+    n_times: int = 10,
+    checkpoint: bool = False,
+    normals: Float[ArrayLike, "N 3"] | None = None,
 ) -> tuple[Float[Array, "T N 3"], Float[Array, "T N 3"]]:
     """Grid states and stored slopes of the Heun-type recursion above.
 
@@ -54,18 +58,22 @@ def integrate(
         n_times: T, the number of grid times including 0 and 1 (default 10, as the release).
         checkpoint: rematerialise each field evaluation in the backward pass (less memory,
             one extra forward evaluation per step under differentiation).
+        normals: (N, 3) the surface normals at the start points (zero rows where a point has none),
+            read only by a field whose weights depend on them (a :class:`~ncflow.flow.SkinnedField`
+            with ``weight_mode="surface"``).
 
     Returns:
         xs (T, N, 3) with xs[0] = x0 and xs[-1] the state at t = 1, and vs (T, N, 3) the slopes v_k.
 
-    A field with an ``on_grid(n_times, dtype, x0)`` method (:class:`~ncflow.flow.SkinnedField`) is
+    A field with an ``on_grid(n_times, dtype, x0, n0)`` method (:class:`~ncflow.flow.SkinnedField`) is
     replaced by what it returns: the same field with its time-only parts tabulated on the grid and
-    its parts that depend on each point's start (the skinned field's bone weights) computed at x0.
+    its parts that depend on each point's start (the skinned field's bone weights) computed at x0
+    (and ``normals``).
     """
     x0 = jnp.asarray(x0)
     ts = time_grid(n_times, x0.dtype)
     if hasattr(field, "on_grid"):
-        field = field.on_grid(n_times, x0.dtype, x0)
+        field = field.on_grid(n_times, x0.dtype, x0, normals)
     h = jnp.asarray(1.0 / (n_times - 1), x0.dtype)
     g = eqx.filter_checkpoint(lambda x, t: field(x, t)) if checkpoint else field
 
@@ -111,14 +119,18 @@ def hermite(xs: Float[Array, "T N 3"], vs: Float[Array, "T N 3"], t_query: Float
 
 
 @eqx.filter_jit
-def _flow_jit(field, points, n_times, times, checkpoint, chunk_size):
+def _flow_jit(field, points, normals, n_times, times, checkpoint, chunk_size):
     n = points.shape[0]
     if chunk_size is None or n <= chunk_size:
-        xs, vs = integrate(field, points, n_times, checkpoint)
+        xs, vs = integrate(field, points, n_times, checkpoint, normals)
     else:
         pad = (-n) % chunk_size
         p = jnp.concatenate([points, jnp.broadcast_to(points[:1], (pad, 3))]).reshape(-1, chunk_size, 3)
-        xs, vs = jax.lax.map(lambda c: integrate(field, c, n_times, checkpoint), p)  # (C, T, chunk, 3)
+        if normals is None:
+            xs, vs = jax.lax.map(lambda c: integrate(field, c, n_times, checkpoint), p)  # (C, T, chunk, 3)
+        else:
+            q = jnp.concatenate([normals, jnp.broadcast_to(normals[:1], (pad, 3))]).reshape(-1, chunk_size, 3)
+            xs, vs = jax.lax.map(lambda c: integrate(field, c[0], n_times, checkpoint, c[1]), (p, q))
         xs = jnp.moveaxis(xs, 0, 1).reshape(n_times, -1, 3)[:, :n]
         vs = jnp.moveaxis(vs, 0, 1).reshape(n_times, -1, 3)[:, :n]
     return xs if times is None else hermite(xs, vs, times)
@@ -131,10 +143,12 @@ def flow_points(
     times: Float[Array, " Q"] | None = None,
     checkpoint: bool = False,
     chunk_size: int | None = None,
+    normals: Float[ArrayLike, "N 3"] | None = None,
 ) -> Float[Array, "T_or_Q N 3"]:
     """Move any point set by a (trained) field: the grid states (T, N, 3), or the Hermite frames
-    (Q, N, 3) at ``times`` when given. Identical to :func:`integrate` on the same points (each
-    trajectory is independent), so the result is resolution-agnostic. ``chunk_size`` processes the
+    (Q, N, 3) at ``times`` when given; ``normals`` (N, 3) as :func:`integrate`'s. Identical to
+    :func:`integrate` on the same points (each trajectory is independent), so the result is
+    resolution-agnostic. ``chunk_size`` processes the
     points in chunks of that many rows (bounded memory for large meshes). Jitted; the points are
     padded to a size bucket (:func:`ncflow.jit.buckets.pad_points`, copies of the first point) so that
     point sets of similar size share the compiled program.
@@ -142,5 +156,7 @@ def flow_points(
     points = jnp.asarray(points)
     times = None if times is None else jnp.asarray(times, dtype=points.dtype)
     n = points.shape[0]
-    out = _flow_jit(field, pad_points(points), n_times, times, checkpoint, chunk_size)
+    if normals is not None:
+        normals = pad_points(jnp.asarray(normals, points.dtype))
+    out = _flow_jit(field, pad_points(points), normals, n_times, times, checkpoint, chunk_size)
     return out[:, :n] if out.shape[1] > n else out

@@ -28,6 +28,12 @@ Where the weights are taken (``weight_mode``):
   fingertip over, and its surface is left on its own middle phalanx; benchmarks/RESULTS.md,
   "Fists: bone weights at the start"). Each trajectory still depends only on its own start, so
   any point set (the full-resolution source, frames) is moved by the same trained field.
+* ``"surface"``: as ``"start"``, with the weights of a surface point taken by
+  :func:`surface_skinning_weights` from its start and its normal there: a bone whose nearest point
+  lies in front of the skin is left out. In a source whose limbs touch (a fist: the palm's skin under
+  the fingertips is nearer the fingers' bones than its own), the plain weights give that skin to the
+  touching limb, and straightening the limb tears it off its own part. Points without a normal (bone
+  and tissue samples: a zero normal) take the plain weights of ``"start"``.
 
 The matcher chooses between them per pair (``flow.skinning_weights = "auto"``, see
 :func:`ncflow.matcher.prepare.skinning_weight_mode`).
@@ -47,7 +53,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from ncflow.flow.integrate import time_grid
 from ncflow.skeleton import Skeleton
@@ -141,6 +147,27 @@ FRONT_PENALTY = 1e3
 """Added to a bone's distance (× the width) where it lies in front of the skin (:func:`surface_skinning_weights`)."""
 
 
+def skin_contact(
+    x: Float[ArrayLike, "N 3"],
+    normals: Float[ArrayLike, "N 3"],
+    weights: Float[ArrayLike, " N"],
+    heads: Float[ArrayLike, "B 3"],
+    tails: Float[ArrayLike, "B 3"],
+    counted: Bool[ArrayLike, "B B"] | None = None,
+) -> float:
+    """The share (by ``weights``, e.g. vertex areas) of surface points whose nearest bone lies in front
+    of their skin: where :func:`surface_skinning_weights` gives a point to another bone than
+    :func:`skinning_weights` does — counted only where ``counted[nearest, given]`` (default: all), e.g.
+    bones of different limbs, so that a bone running just under the skin of its own limb is no contact.
+    """
+    args = [jnp.asarray(a, jnp.float32) for a in (x, normals, heads, tails)]
+    plain = np.asarray(jnp.argmax(skinning_weights(args[0], args[2], args[3], 1.0), -1))
+    skin = np.asarray(jnp.argmax(surface_skinning_weights(*args, 1.0), -1))
+    moved = plain != skin if counted is None else (plain != skin) & np.asarray(counted)[plain, skin]
+    w = np.asarray(weights, np.float64)
+    return float(w @ moved / max(w.sum(), 1e-300))
+
+
 def core_gate(
     x: Float[Array, "N 3"],
     heads: Float[Array, "B 3"],
@@ -177,9 +204,10 @@ class SkinnedField(eqx.Module):
             number) so that one compiled program serves every skeleton, and never trained (the
             optimiser's ``"frozen"`` group, :func:`ncflow.matcher.train.parameter_labels`).
         interp: "sclerp" (default) or "slerp", as :func:`ncflow.skeleton.interpolate_world`.
-        weight_mode: "current" (default) or "start" — where the bone weights are taken; see the
-            module docstring. Only the integrator (:func:`ncflow.flow.integrate`, through
-            :meth:`on_grid`) knows the starts: a direct call ``field(x, t)`` takes x as the start.
+        weight_mode: "current" (default), "start" or "surface" — where the bone weights are taken;
+            see the module docstring. Only the integrator (:func:`ncflow.flow.integrate`, through
+            :meth:`on_grid`) knows the starts and their normals: a direct call ``field(x, t)`` takes x
+            as the start, without normals.
         core: (B,) radii of the bones' rigid cores (0: none), or None for no cores: the residual is
             faded out around every bone (:func:`core_gate`), so that points in a core move with the
             skeleton alone; held as an array, never trained, like ``width``.
@@ -251,15 +279,25 @@ class SkinnedField(eqx.Module):
         return heads, tails, c, jnp.einsum("bij,bkj->bik", dr, r, precision=_HIGHEST), dc  # Ω = Ṙ Rᵀ
 
     def weights(
-        self, x: Float[Array, "N 3"], t: Float[Array, ""] | float, x0: Float[Array, "N 3"] | None = None
+        self,
+        x: Float[Array, "N 3"],
+        t: Float[Array, ""] | float,
+        x0: Float[Array, "N 3"] | None = None,
+        n0: Float[Array, "N 3"] | None = None,
     ) -> Float[Array, "N B"]:
-        """Bone weights of points x at time t that started at x0 (default x), by ``weight_mode``
-        (rows sum to 1).
+        """Bone weights of points x at time t that started at x0 (default x) with normals n0 there
+        (default none: zero rows), by ``weight_mode`` (rows sum to 1).
         """
-        if self.weight_mode == "start":
-            x, t = (x if x0 is None else x0), jnp.zeros((), self.pose.rotations.dtype)
-        heads, tails, *_ = self._motion(t)
-        return skinning_weights(x, heads, tails, self._width())
+        if self.weight_mode == "current":
+            heads, tails, *_ = self._motion(t)
+            return skinning_weights(x, heads, tails, self._width())
+        heads, tails, *_ = self._motion(jnp.zeros((), self.pose.rotations.dtype))
+        return self._start_weights(x if x0 is None else x0, n0, heads, tails)
+
+    def _start_weights(self, x0, n0, heads, tails):
+        if self.weight_mode == "surface" and n0 is not None:
+            return surface_skinning_weights(x0, jnp.asarray(n0, x0.dtype), heads, tails, self._width())
+        return skinning_weights(x0, heads, tails, self._width())
 
     def _width(self) -> Float[Array, ""]:
         return jax.lax.stop_gradient(self.width)
@@ -276,21 +314,28 @@ class SkinnedField(eqx.Module):
         motion = self._motion(t)
         return _blend(x, motion, self._width()) + _gated(self.residual(x, t), x, motion, self._core())
 
-    def on_grid(self, n_times: int, dtype=None, x0: Float[Array, "N 3"] | None = None) -> _GridSkinnedField:
-        """The same field for the integrator's grid t_k = k/(T−1) and the start points ``x0``: the
-        bones' motions at the T grid times are computed once (one batched forward kinematics)
-        instead of at every evaluation, and with ``weight_mode="start"`` so are the weights of the
-        (N, 3) start points (the returned field is then called on those N trajectories only).
+    def on_grid(
+        self,
+        n_times: int,
+        dtype=None,
+        x0: Float[Array, "N 3"] | None = None,
+        n0: Float[Array, "N 3"] | None = None,
+    ) -> _GridSkinnedField:
+        """The same field for the integrator's grid t_k = k/(T−1) and the start points ``x0`` (with
+        their normals ``n0`` for ``weight_mode="surface"``; zero rows or None: no normal): the bones'
+        motions at the T grid times are computed once (one batched forward kinematics) instead of at
+        every evaluation, and with the weights of the start ("start", "surface") so are the weights of
+        the (N, 3) start points (the returned field is then called on those N trajectories only).
         """
         times = time_grid(n_times, dtype or self.pose.rotations.dtype)
         motion = jax.vmap(self._motion)(times)
         fixed = None
-        if self.weight_mode == "start" and x0 is not None:
-            fixed = skinning_weights(jnp.asarray(x0), motion[0][0], motion[1][0], self._width())  # bones at t_0 = 0
+        if self.weight_mode != "current" and x0 is not None:
+            fixed = self._start_weights(jnp.asarray(x0), n0, motion[0][0], motion[1][0])  # bones at t_0 = 0
         return _GridSkinnedField(self.residual, motion, self._width(), self._core(), n_times, fixed)
 
 
-WEIGHT_MODES = ("current", "start")
+WEIGHT_MODES = ("current", "start", "surface")
 """Where a :class:`SkinnedField` takes its bone weights: at each point's current place or its start."""
 
 

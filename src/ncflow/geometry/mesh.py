@@ -106,6 +106,15 @@ def vertex_normals(vertices: Float[np.ndarray, "V 3"], faces: Int[np.ndarray, "F
     return np.divide(out, norm, out=np.zeros_like(out), where=norm > 0)
 
 
+def outward_vertex_normals(
+    vertices: Float[np.ndarray, "V 3"], faces: Int[np.ndarray, "F 3"]
+) -> Float[np.ndarray, "V 3"]:
+    """(V, 3) :func:`vertex_normals` turned to point out of the surface (:func:`orientation`: an
+    inside-out mesh's are reversed); zero rows for a sheet, whose outside cannot be told.
+    """
+    return orientation(vertices, faces) * vertex_normals(vertices, faces)
+
+
 COORDINATE_LIMIT = 1e30
 """The largest coordinate magnitude accepted: outputs are written in the input's units at float32
 (largest finite value 3.4e38), with room for the flow to move points beyond the input's extent."""

@@ -122,6 +122,19 @@ class Skeleton:
         return [f"{names[self.parents[j]]} -> {names[j]}" for j in range(1, self.n_joints)]
 
     @property
+    def bone_hops(self) -> Int[np.ndarray, "B B"]:
+        """(B, B) how many joints lie between two bones along the tree: 0 for a bone and itself, 1 for
+        bones that share a joint (parent and child, siblings), 2 for a bone and its grandchild, ...
+        """
+        from scipy.sparse.csgraph import shortest_path
+
+        b = self.bones
+        incidence = np.zeros((b.shape[0], self.n_joints))
+        incidence[np.arange(b.shape[0]), b[:, 0]] = incidence[np.arange(b.shape[0]), b[:, 1]] = 1.0
+        adjacent = (incidence @ incidence.T > 0) & ~np.eye(b.shape[0], dtype=bool)
+        return shortest_path(adjacent.astype(float), unweighted=True, directed=False).astype(np.int64)
+
+    @property
     def offsets(self) -> Float[np.ndarray, "J 3"]:
         """Rest offsets o_j = P_j − P_parent(j); for the root its absolute position P_0."""
         off = self.positions - self.positions[np.maximum(self.parents, 0)]

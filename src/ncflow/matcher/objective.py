@@ -32,6 +32,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from ncflow.flow import GSONet, integrate, time_grid
+from ncflow.geometry.mesh import outward_vertex_normals
 from ncflow.geometry.topology import Topology
 from ncflow.jit.buckets import bucket, pad_mesh
 from ncflow.losses import (
@@ -121,6 +122,7 @@ class Arrays:
     """
 
     source: Float[Array, "V 3"]
+    normals: Float[Array, "V 3"]  # outward unit vertex normals (zero on padding and where none: a sheet)
     topology: Topology
     edges: Int[Array, "E 2"]
     edge_valid: Bool[Array, " E"]
@@ -144,10 +146,13 @@ class Arrays:
         centroids[:k] = problem.centroids
         topo, v = problem.source_topology, np.asarray(problem.working.vertices)
         nv, ne = v.shape[0], topo.n_edges
+        normals = outward_vertex_normals(v, np.asarray(problem.working.faces))
         if pad:
             v, topo = pad_mesh(v, topo)
+            normals = np.concatenate([normals, np.zeros((v.shape[0] - nv, 3))])
         return cls(
             source=jnp.asarray(v, DTYPE),
+            normals=jnp.asarray(normals, DTYPE),
             topology=topo,
             edges=jnp.asarray(topo.edges),
             edge_valid=jnp.asarray(np.arange(topo.n_edges) < ne),
@@ -230,7 +235,9 @@ def objective(
         parts.append(
             tissue_stencil(sample_tissue(kt, arrays.centroids, s.n_tissue, arrays.centroid_valid), s.tissue_delta)
         )
-    xs, _ = integrate(params.flow, jnp.concatenate(parts), s.n_times)
+    points = jnp.concatenate(parts)
+    normals = jnp.concatenate([arrays.normals, jnp.zeros((points.shape[0] - nv, 3), DTYPE)])  # samples: none
+    xs, _ = integrate(params.flow, points, s.n_times, normals=normals)
     surf = xs[:, :nv]
     flowed_bones = xs[:, nv : nv + nb].reshape(s.n_times, *bones.shape)
     data = _data_term(s.metrics, which, surf[-1], arrays, targets, sigma, sigma_normal, yy)

@@ -87,7 +87,9 @@ def close_call(placements: list[Placement], scores: list[float]) -> list[int]:
     return near if any(angle(i) >= CLOSE_ANGLE for i in near) else []
 
 
-def place_and_pose(src_v, src_f, tgt_v, tgt_f, skeleton: Skeleton, config, message=lambda text: None):
+def place_and_pose(
+    src_v, src_f, tgt_v, tgt_f, skeleton: Skeleton, config, message=lambda text: None, skin_aware: bool = False
+):
     """The target's placement and the source skeleton's initial pose (normalised coordinates).
 
     With ``placement = "auto"`` and the pose search on (``pose_search`` and ``flow.skinning``), each
@@ -95,7 +97,9 @@ def place_and_pose(src_v, src_f, tgt_v, tgt_f, skeleton: Skeleton, config, messa
     own pose search and the lowest articulated score wins (two facings that nearly tie, :func:`close_call`,
     are searched once more with the next seed's Diracs, each keeping its better pose); without the search,
     the best rigid fit
-    (:func:`~ncflow.matcher.placement.place_target`). Returns (placement, pose search result or None,
+    (:func:`~ncflow.matcher.placement.place_target`). ``skin_aware``: the search scores poses with the
+    bone weights the training will use when they see the skin (``flow.skinning_weights`` "surface",
+    :func:`~ncflow.matcher.pose_search.search_poses`). Returns (placement, pose search result or None,
     trials, placement seconds, pose-search seconds).
     """
     searching = searches_pose(config)
@@ -123,6 +127,7 @@ def place_and_pose(src_v, src_f, tgt_v, tgt_f, skeleton: Skeleton, config, messa
             tgt_f,
             skinning_width=skinning_width(config, skeleton),
             seed=seed,
+            skin_aware=skin_aware,
         )
 
     results = search(range(len(placements)), config.seed)
@@ -153,7 +158,7 @@ def code_digest() -> str:
     return h.hexdigest()
 
 
-def _setup_key(src_v, src_f, tgt_v, tgt_f, skeleton: Skeleton, config) -> str:
+def _setup_key(src_v, src_f, tgt_v, tgt_f, skeleton: Skeleton, config, skin_aware: bool = False) -> str:
     h = hashlib.sha256()
     for a in (src_v, tgt_v, skeleton.positions):
         h.update(np.ascontiguousarray(a, np.float64).tobytes())
@@ -161,7 +166,7 @@ def _setup_key(src_v, src_f, tgt_v, tgt_f, skeleton: Skeleton, config) -> str:
     for a in (src_f, tgt_f, skeleton.parents):
         h.update(np.ascontiguousarray(a, np.int64).tobytes())
         h.update(repr(np.shape(a)).encode())
-    settings = (config.placement, searches_pose(config), skinning_width(config, skeleton), config.seed)
+    settings = (config.placement, searches_pose(config), skinning_width(config, skeleton), config.seed, skin_aware)
     h.update(repr(settings).encode())
     h.update(code_digest().encode())
     return h.hexdigest()[:32]
@@ -213,7 +218,9 @@ def _read_setup(path, n_joints: int):
     return placement, search, trials, *(float(x) for x in a["seconds"])
 
 
-def place_and_pose_cached(src_v, src_f, tgt_v, tgt_f, skeleton: Skeleton, config, message=lambda text: None):
+def place_and_pose_cached(
+    src_v, src_f, tgt_v, tgt_f, skeleton: Skeleton, config, message=lambda text: None, skin_aware: bool = False
+):
     """:func:`place_and_pose`, kept in the cache folder (``setup/``) with ``setup_cache`` on: a run on
     the same pair (the same normalised working source, target and skeleton, placement and pose
     search settings, seed and ncflow code) with other training settings reads the placement and the
@@ -224,12 +231,12 @@ def place_and_pose_cached(src_v, src_f, tgt_v, tgt_f, skeleton: Skeleton, config
     """
 
     def compute():
-        return place_and_pose(src_v, src_f, tgt_v, tgt_f, skeleton, config, message)
+        return place_and_pose(src_v, src_f, tgt_v, tgt_f, skeleton, config, message, skin_aware)
 
     if not config.setup_cache or (config.placement != "auto" and not searches_pose(config)):
         return compute(), {"hit": False, "file": None}
     t0 = time.perf_counter()
-    path = cache_root() / "setup" / f"{_setup_key(src_v, src_f, tgt_v, tgt_f, skeleton, config)}.npz"
+    path = cache_root() / "setup" / f"{_setup_key(src_v, src_f, tgt_v, tgt_f, skeleton, config, skin_aware)}.npz"
     value, entry, hit = computed_once(
         path, compute, functools.partial(_read_setup, n_joints=skeleton.n_joints), _write_setup
     )
@@ -239,7 +246,9 @@ def place_and_pose_cached(src_v, src_f, tgt_v, tgt_f, skeleton: Skeleton, config
 
 
 def place(setup: Setup, config, message=lambda text: None) -> Placed:
-    """The placement of the target and the skeleton's initial pose (:func:`place_and_pose_cached`)."""
+    """The placement of the target and the skeleton's initial pose (:func:`place_and_pose_cached`; the
+    search sees the skin as the training's bone weights do, :func:`ncflow.matcher.prepare.skinning_weight_mode`).
+    """
     (placement, search, trials, t_place, t_search), cache = place_and_pose_cached(
         setup.working.vertices,
         setup.working.faces,
@@ -248,5 +257,6 @@ def place(setup: Setup, config, message=lambda text: None) -> Placed:
         setup.skeleton_normalized,
         config,
         message,
+        skin_aware=setup.skinning_weights["mode"] == "surface",
     )
     return Placed(placement, None if search is None else search.pose, search, trials, t_place, t_search, cache)

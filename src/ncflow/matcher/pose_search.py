@@ -37,8 +37,9 @@ beams (:func:`refine_pooled`).
 
 Off by default (measured in docs/tuning.md: it puts fingers right in the search, and on MANO pairs the
 training then did worse): ``chain_sigma`` adds :func:`search_chains`, each finger or limb re-posed from a
-grid of planar curls with the others held at a finer σ, and ``skin_aware`` gives the source's samples bone
-weights that leave out the bones in front of their skin.
+grid of planar curls with the others held at a finer σ. ``skin_aware`` gives the source's samples bone
+weights that leave out the bones in front of their skin; the matcher turns it on where the training's
+weights do the same (``flow.skinning_weights`` "surface": a source whose limbs touch).
 
 The ``paper`` preset (no skeleton-driven field) does not use it: there the pose only enters the
 constraints, which are refitted at every step.
@@ -280,8 +281,8 @@ def search_poses(
             or limb with the others held (0.1 was measured); None (the default): none. Not adopted: it
             fixes procedural hands' fingers in the search, but see docs/tuning.md.
         skin_aware: the source samples' bone weights leave out the bones in front of their skin
-            (:func:`~ncflow.flow.skinning.surface_skinning_weights`); off by default: measured worse
-            after training on two of three MANO pairs (docs/tuning.md).
+            (:func:`~ncflow.flow.skinning.surface_skinning_weights`), as the training's do with
+            ``flow.skinning_weights`` "surface" (:func:`ncflow.matcher.place.place` passes it then).
         chain_sweeps: passes of the chain search over the chains.
         chain_near: the chain search runs on the placements whose score is within this share of the best.
     """

@@ -18,9 +18,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Float
 
+from ncflow.flow.skinning import skin_contact
 from ncflow.geometry.cloud import PointCloud
 from ncflow.geometry.decimate import Decimation, decimate
-from ncflow.geometry.mesh import Mesh
+from ncflow.geometry.mesh import Mesh, face_areas, outward_vertex_normals
 from ncflow.geometry.normalize import Normalization, fit_normalization
 from ncflow.geometry.overlap import self_overlap
 from ncflow.geometry.repair import Repair
@@ -209,9 +210,14 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Setu
     tissue_seconds = time.perf_counter() - t0
     source_topology = mesh_topology(work.faces, work.vertices.shape[0], name=src.name)
     target_topology = mesh_topology(tgt_f, tgt_c.n_vertices, name=tgt.name)
-    weights = skinning_weight_mode(config, work.vertices, work.faces, tgt_c.vertices, tgt_f)
     ranges, inside = inside_axial_ranges(skel_n, work.vertices, work.faces)
+    weights = skinning_weight_mode(config, work.vertices, work.faces, tgt_c.vertices, tgt_f, skel_n, ranges)
     warnings.extend(bones_partly_outside(skel, inside))
+    if weights["mode"] == "surface" and config.flow.skinning_weights == "auto":
+        message(
+            f"the source's limbs touch ({weights['source_contact']:.1%} of its area lies nearer another "
+            "limb's bone than its own): bone weights taken at each point's start, from the bones under its skin"
+        )
     if weights["mode"] == "start" and config.flow.skinning_weights == "auto":
         message(
             f"the target passes through itself ({weights['target_overlap']:.1%} of its area, the source "
@@ -250,24 +256,67 @@ AUTO_OVERLAP = 0.005
 exceeds the source's by more than this share of the area."""
 
 
-def skinning_weight_mode(config, source_vertices, source_faces, target_vertices, target_faces) -> dict:
+def skinning_weight_mode(
+    config,
+    source_vertices,
+    source_faces,
+    target_vertices,
+    target_faces,
+    skeleton: Skeleton | None = None,
+    ranges: Float[np.ndarray, "B 2"] | None = None,
+) -> dict:
     """Where the skeleton-driven field takes its bone weights (:class:`ncflow.flow.SkinnedField`).
 
-    ``flow.skinning_weights`` "current" or "start" is used as it is. With "auto" (the default):
-    "start" when the target passes through itself (:func:`ncflow.geometry.overlap.self_overlap`)
-    over more than :data:`AUTO_OVERLAP` more of its area than the source does — a flow of space
-    cannot make a surface pass through itself, so such a target (the fingertips of a captured or
-    rigged fist sunk into the palm) needs the weights of the start; otherwise "current", the
-    diffeomorphic flow. Returns ``{"setting", "mode", "source_overlap", "target_overlap"}``
-    (overlaps None when not measured: a fixed setting, or no skeleton-driven field).
+    ``flow.skinning_weights`` "current", "start" or "surface" is used as it is. With "auto" (the
+    default):
+
+    * "surface" when the source's limbs touch: more than :data:`AUTO_CONTACT` of its area has its
+      nearest bone of ``skeleton`` (in the source's coordinates) in front of its skin, a bone
+      :data:`CONTACT_HOPS` or more joints away from the one under it (a fist's palm under its
+      fingertips; :func:`ncflow.flow.skinning.skin_contact`, on the bones' parts inside the source,
+      ``ranges`` of :func:`~ncflow.skeleton.checks.inside_axial_ranges`, found when not given). The
+      plain weights would give that skin to the touching limb.
+    * else "start" when the target passes through itself (:func:`ncflow.geometry.overlap.self_overlap`)
+      over more than :data:`AUTO_OVERLAP` more of its area than the source does: a flow of space
+      cannot make a surface pass through itself, so such a target (the fingertips of a captured or
+      rigged fist sunk into the palm) needs the weights of the start;
+    * otherwise "current", the diffeomorphic flow.
+
+    Returns ``{"setting", "mode", "source_contact", "source_overlap", "target_overlap"}`` (None where
+    not measured: a fixed setting, no skeleton-driven field, no ``skeleton``, or decided by the contact).
     """
     setting = config.flow.skinning_weights
     out = {"setting": setting, "mode": "current" if setting == "auto" else setting}
-    out.update(source_overlap=None, target_overlap=None)
+    out.update(source_contact=None, source_overlap=None, target_overlap=None)
     if setting != "auto" or not config.flow.skinning:
         return out
+    if skeleton is not None and skeleton.n_bones:
+        v, f = np.asarray(source_vertices, np.float64), np.asarray(source_faces)
+        areas = np.bincount(f.ravel(), np.repeat(face_areas(v, f) / 3.0, 3), minlength=v.shape[0])
+        pos, bones = np.asarray(skeleton.positions), np.asarray(skeleton.bones)
+        heads, tails = pos[bones[:, 0]], pos[bones[:, 1]]
+        if ranges is None:  # a bone's part outside the skin touches nothing
+            ranges = inside_axial_ranges(skeleton, v, f)[0]
+        heads, tails = heads + ranges[:, :1] * (tails - heads), heads + ranges[:, 1:] * (tails - heads)
+        counted = skeleton.bone_hops >= CONTACT_HOPS
+        contact = skin_contact(v, outward_vertex_normals(v, f), areas, heads, tails, counted)
+        out["source_contact"] = contact
+        if contact > AUTO_CONTACT:
+            out["mode"] = "surface"
+            return out
     src, tgt = self_overlap(source_vertices, source_faces), self_overlap(target_vertices, target_faces)
     out.update(source_overlap=src, target_overlap=tgt)
     if tgt - src > AUTO_OVERLAP:
         out["mode"] = "start"
     return out
+
+
+AUTO_CONTACT = 0.015
+"""``flow.skinning_weights = "auto"`` takes the skin-aware weights of the start ("surface") when more
+than this share of the source's area has another limb's bone in front of its skin, nearer than its own.
+Measured on the hand benchmark's 41 MANO sources: fists and a pinch into the palm 0.018–0.066, the
+others at most 0.013; bodies and animals of the hard set at most 0.009 (docs/tuning.md)."""
+
+CONTACT_HOPS = 3
+"""Bones this many joints apart or more count as different limbs in the contact share (a fingertip
+and its own finger's base bone are 3 apart; a neck and head bone 1)."""

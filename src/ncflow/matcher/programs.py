@@ -40,17 +40,21 @@ FINAL_BONE_SAMPLES = 200  # per bone, for the reported g_k (fresh samples, so an
 
 
 def output_flow_program(skeleton, radii, ranges, n_times: int):
-    """The compiled program of :func:`output_motion`: ``(field, points, times, key)`` → the frames
-    (Q, N, 3) of ``points`` at ``times``, FINAL_BONE_SAMPLES fresh samples per bone (B, n, 3) and
-    their grid states (T, B, n, 3). Built once per problem, so that it can be compiled ahead
+    """The compiled program of :func:`output_motion`: ``(field, points, normals, times, key)`` → the
+    frames (Q, N, 3) of ``points`` (with their outward ``normals``, for bone weights that read them)
+    at ``times``, FINAL_BONE_SAMPLES fresh samples per bone (B, n, 3) and their grid states
+    (T, B, n, 3). Built once per problem, so that it can be compiled ahead
     (:mod:`ncflow.jit.ahead`).
     """
 
     @eqx.filter_jit
-    def output_flow(field, points, times, key):
+    def output_flow(field, points, normals, times, key):
         bones = sample_bones(skeleton, key, FINAL_BONE_SAMPLES, radius=radii, axial_range=ranges, dtype=DTYPE).points
-        xs, vs = integrate(field, jnp.concatenate([points, bones.reshape(-1, 3)]), n_times)
+        bones = bones.reshape(-1, 3)
+        n = jnp.concatenate([normals, jnp.zeros_like(bones)])  # bone samples: no normal
+        xs, vs = integrate(field, jnp.concatenate([points, bones]), n_times, normals=n)
         m = points.shape[0]
+        bones = bones.reshape(-1, FINAL_BONE_SAMPLES, 3)
         return hermite(xs[:, :m], vs[:, :m], times), bones, xs[:, m:].reshape(n_times, *bones.shape)
 
     return output_flow
@@ -61,9 +65,11 @@ def output_frame_times(config) -> np.ndarray:
     return np.linspace(0.0, 1.0, config.frames)
 
 
-def output_flow_inputs(source: np.ndarray, frame_times: np.ndarray) -> tuple:
-    """The points (the source padded to its size bucket) and times :func:`output_motion` flows."""
-    return pad_points(np.asarray(source, DTYPE)), np.asarray(frame_times, DTYPE)
+def output_flow_inputs(source: np.ndarray, normals: np.ndarray, frame_times: np.ndarray) -> tuple:
+    """The points and their normals (the source padded to its size bucket) and the times
+    :func:`output_motion` flows.
+    """
+    return pad_points(np.asarray(source, DTYPE)), pad_points(np.asarray(normals, DTYPE)), np.asarray(frame_times, DTYPE)
 
 
 def output_refit_program(skeleton, config):
@@ -106,7 +112,7 @@ class OutputPrograms:
         field's values do not matter).
         """
         frame_times = output_frame_times(config)
-        self.flow.lower(field, *output_flow_inputs(source, frame_times), key).compile()
+        self.flow.lower(field, *output_flow_inputs(source, np.zeros_like(source), frame_times), key).compile()
         bones = jnp.zeros((n_bones, FINAL_BONE_SAMPLES, 3), DTYPE)
         states = jnp.zeros((config.flow.n_times, *bones.shape), DTYPE)
         lam, cw = jnp.zeros((2, n_bones), DTYPE), jnp.zeros(2, DTYPE)

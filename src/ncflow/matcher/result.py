@@ -25,7 +25,7 @@ import numpy as np
 from ncflow import __version__
 from ncflow.config import config_to_dict
 from ncflow.flow import flow_points
-from ncflow.geometry.mesh import Mesh
+from ncflow.geometry.mesh import Mesh, outward_vertex_normals
 from ncflow.geometry.normalize import Normalization
 from ncflow.io.fallback import save_result
 from ncflow.io.result import ResultFolder
@@ -78,18 +78,24 @@ class MatchResult:
     state: TrainState | None = dataclasses.field(repr=False, default=None)
     skeleton_suggested: bool = False
 
-    def flow(self, points: np.ndarray, times: np.ndarray | None = None) -> np.ndarray:
+    def flow(
+        self, points: np.ndarray, times: np.ndarray | None = None, normals: np.ndarray | None = None
+    ) -> np.ndarray:
         """Move any points (user coordinates, e.g. a higher-resolution source) by the trained field.
 
         Returns (N, 3) at t = 1, or (Q, N, 3) at the given times (the target's placement included,
-        as in :attr:`frames`).
+        as in :attr:`frames`). ``normals`` (N, 3): the outward surface normals at the points, read where
+        the bone weights see the skin (``metrics["skinning_weights"]["mode"] == "surface"``; without
+        them such points take the plain weights of the start).
         """
         p = jnp.asarray(self.normalization.apply(np.asarray(points, np.float64)), DTYPE)
+        n = None if normals is None else jnp.asarray(normals, DTYPE)
         if times is None:
-            out = np.asarray(flow_points(self.field, p, self.n_times)[-1], np.float64)
+            out = np.asarray(flow_points(self.field, p, self.n_times, normals=n)[-1], np.float64)
             out = self._placed_back(out[None], np.ones(1))[0]
         else:
-            out = np.asarray(flow_points(self.field, p, self.n_times, times=jnp.asarray(times, DTYPE)), np.float64)
+            t = jnp.asarray(times, DTYPE)
+            out = np.asarray(flow_points(self.field, p, self.n_times, times=t, normals=n), np.float64)
             out = self._placed_back(out, np.asarray(times, np.float64))
         return self.normalization.invert(out)
 
@@ -121,16 +127,19 @@ class MatchResult:
         return save_result(self.to_folder(), out_dir, overwrite=overwrite, shown=shown)
 
 
-def output_motion(field, source: np.ndarray, frame_times: np.ndarray, n_times: int, skeleton, radii, key, program):
+def output_motion(
+    field, source: np.ndarray, normals: np.ndarray, frame_times: np.ndarray, n_times: int, skeleton, radii, key, program
+):
     """The trained flow of everything the outputs need, in one compiled program (``program``:
-    :func:`~ncflow.matcher.programs.output_flow_program` of (skeleton, radii, ranges, n_times)): the source's frames
-    (Q, V, 3) at ``frame_times`` (cubic Hermite between grid states, exact at grid times) and
+    :func:`~ncflow.matcher.programs.output_flow_program` of (skeleton, radii, ranges, n_times)): the
+    source's frames (Q, V, 3) at ``frame_times`` (cubic Hermite between grid states, exact at grid
+    times; its outward vertex ``normals`` (V, 3) read by bone weights that see the skin) and
     FINAL_BONE_SAMPLES fresh samples per bone (B, n, 3) with their grid states (T, B, n, 3). The source
     is padded to a size bucket (:func:`ncflow.jit.buckets.pad_points`, copies of its first vertex; each
     trajectory is independent) so that sources of similar size share the program; the bone samples ride
     along with the source (flowing them separately compiled the flow twice).
     """
-    frames, bones, states = program(field, *output_flow_inputs(source, frame_times), key)
+    frames, bones, states = program(field, *output_flow_inputs(source, normals, frame_times), key)
     return np.asarray(frames[:, : source.shape[0]], np.float64), bones, states
 
 
@@ -178,8 +187,10 @@ def build_result(
     src_v = setup.source_vertices
     frame_times = output_frame_times(cfg)
     arrays, outputs = programs.arrays, programs.outputs
+    normals = outward_vertex_normals(src_v, setup.source.faces)
+    field = state.params.flow
     frames_n, bones, states = output_motion(
-        state.params.flow, src_v, frame_times, cfg.flow.n_times, arrays.skeleton, arrays.radii, key, outputs.flow
+        field, src_v, normals, frame_times, cfg.flow.n_times, arrays.skeleton, arrays.radii, key, outputs.flow
     )
     frames_n[0] = src_v  # t = 0 is the source exactly
     deformed_n = frames_n[-1]  # Hermite output at a grid time is the grid state: the state at t = 1

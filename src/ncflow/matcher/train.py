@@ -116,9 +116,10 @@ def build_optimizer(config) -> optax.GradientTransformation:
 def make_step(arrays: Arrays, settings: Settings, optimizer: optax.GradientTransformation, constraints):
     """The jitted training step, one for every stage (the stage's metric is the traced ``which``).
 
-    ``step(params, pose, opt_state, mult, targets, which, sigma, sigma_n, yy, cw, lr, progress, key)`` →
+    ``step(params, pose, opt_state, mult, targets, which, sigma, sigma_n, yy, cw, pose_rate, lr, progress, key)`` →
     ``(params, pose, opt_state, mult, aux)``: value and gradient of :func:`~ncflow.matcher.objective.objective`,
-    one optimiser update at learning rate ``lr``, and (MDMM) one step of the multiplier rule
+    one optimiser update at learning rate ``lr`` (the skeleton-driven field's pose moved by ``pose_rate`` of
+    its update: 0 holds it, :func:`stage_inputs`), and (MDMM) one step of the multiplier rule
     (:func:`~ncflow.optim.mdmm.update_multipliers` with ``constraints``' rate and average; ``mult`` a
     :class:`~ncflow.optim.mdmm.Multipliers` of (2, B) arrays) at the rate ramped by ``progress`` (step / total
     steps).
@@ -127,12 +128,15 @@ def make_step(arrays: Arrays, settings: Settings, optimizer: optax.GradientTrans
     loss = functools.partial(objective, arrays=arrays, settings=settings)
 
     @eqx.filter_jit
-    def step(params, pose, opt_state, mult, targets, which, sigma, sigma_n, yy, cw, lr, progress, key):
+    def step(params, pose, opt_state, mult, targets, which, sigma, sigma_n, yy, cw, pose_rate, lr, progress, key):
         (_, aux), grads = eqx.filter_value_and_grad(loss, has_aux=True)(
             params, pose, targets, which, sigma, sigma_n, yy, cw, mult.lam, key
         )
         opt_state = opt_state._replace(hyperparams={**opt_state.hyperparams, "learning_rate": lr})
         updates, opt_state = optimizer.update(grads, opt_state, eqx.filter(params, eqx.is_inexact_array))
+        if hasattr(updates.flow, "pose"):  # a skeleton-driven field
+            held = jax.tree_util.tree_map(lambda u: u * pose_rate, updates.flow.pose)
+            updates = eqx.tree_at(lambda u: u.flow.pose, updates, held)
         params = eqx.apply_updates(params, updates)
         if settings.mode == "mdmm":
             g = jnp.stack([aux["g_ep"], aux["g_tr"]])
@@ -228,9 +232,12 @@ def initial_state(
     return params, pose, opt_state, mult
 
 
-def stage_inputs(stage: Stage, metrics: tuple[str, ...], targets: dict, placeholders: dict) -> tuple:
-    """The step's per-stage arguments: (targets, which, σ, σ_n, ⟨Y, Y⟩, phase weights). The other
-    metrics' slots hold a target of the same shape (compression makes one per σ): unread.
+def stage_inputs(
+    stage: Stage, metrics: tuple[str, ...], targets: dict, placeholders: dict, held_phases: tuple[int, ...] = ()
+) -> tuple:
+    """The step's per-stage arguments: (targets, which, σ, σ_n, ⟨Y, Y⟩, phase weights, pose rate). The other
+    metrics' slots hold a target of the same shape (compression makes one per σ): unread. The pose rate
+    is 0 in the phases ``held_phases`` (the skeleton-driven field's pose held where it is), else 1.
     """
     target, yy, _ = targets[(stage.metric, stage.sigma, stage.phase_config.sigma_normal)]
     stage_targets = tuple(target if m == stage.metric else placeholders[m] for m in metrics)
@@ -238,7 +245,19 @@ def stage_inputs(stage: Stage, metrics: tuple[str, ...], targets: dict, placehol
     cw = jnp.asarray([pw, pw if stage.phase_config.trajectory else 0.0], DTYPE)
     which = jnp.asarray(metrics.index(stage.metric), jnp.int32)
     sigma, sigma_n, yy = (jnp.asarray(v, DTYPE) for v in (stage.sigma, stage.phase_config.sigma_normal, yy))
-    return stage_targets, which, sigma, sigma_n, yy, cw
+    pose_rate = jnp.asarray(0.0 if stage.phase in held_phases else 1.0, DTYPE)
+    return stage_targets, which, sigma, sigma_n, yy, cw, pose_rate
+
+
+def held_phases(config, weight_mode: str) -> tuple[int, ...]:
+    """The phases in which the skeleton-driven field's pose is held at the pose search's: the first of
+    several when the source's limbs touch (bone weights ``"surface"``,
+    :func:`ncflow.matcher.prepare.skinning_weight_mode`) and ``flow.hold_contact_pose`` is on. At the first
+    phase's coarse σ touching limbs merge in the data term: trained there, the pose moved fingers the
+    search had right onto their neighbours (docs/tuning.md).
+    """
+    hold = weight_mode == "surface" and config.flow.hold_contact_pose and len(config.phases) > 1
+    return (0,) if hold else ()
 
 
 def stage_placeholders(stages: list[Stage], targets: dict) -> dict:
@@ -285,13 +304,14 @@ def train(
     metrics = programs.settings.metrics
     step = programs.step
     placeholders = stage_placeholders(stages, targets)
+    held = held_phases(cfg, programs.weight_mode)
     history = []
     done = 0
     aux = None
     cw = None
     guard = DivergenceGuard(cfg.divergence_guard)
     for st in stages:
-        stage_targets, which, sigma, sigma_n, yy, cw = stage_inputs(st, metrics, targets, placeholders)
+        stage_targets, which, sigma, sigma_n, yy, cw, pose_rate = stage_inputs(st, metrics, targets, placeholders, held)
         schedule = phase_schedule(st.phase_config)
         phase_name = st.phase_config.name or st.metric
         guard.start_stage((params, pose, opt_state, mult), watch_violation=done > 0)
@@ -308,6 +328,7 @@ def train(
                 sigma_n,
                 yy,
                 cw,
+                pose_rate,
                 lr,
                 jnp.asarray(done / cfg.total_steps, DTYPE),
                 jax.random.fold_in(k_train, done),

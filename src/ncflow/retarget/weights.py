@@ -42,7 +42,7 @@ from jaxtyping import Bool, Float, Int
 from scipy.sparse.linalg import splu
 
 from ncflow.errors import InputError
-from ncflow.flow.skinning import skinning_weights
+from ncflow.flow.skinning import skinning_weights, surface_skinning_weights
 from ncflow.geometry.barycentric import surface_points
 from ncflow.geometry.laplacian import cotangent_laplacian, lumped_mass
 from ncflow.geometry.mesh import orientation, vertex_normals
@@ -275,17 +275,21 @@ def skeleton_weights(
     rest_positions: Float[np.ndarray, "J 3"],
     parents: Int[np.ndarray, " J"],
     width: float = DEFAULT_SKINNING_WIDTH,
+    normals: Float[np.ndarray, "V 3"] | None = None,
 ) -> Float[np.ndarray, "V J"]:
     """Per-joint skin weights of the skeleton-driven flow field at rest (:func:`ncflow.flow.skinning.skinning_weights`).
 
     Bone weights ``softmax_b(−d_b(x)/τ)`` (d_b the distance to bone b's segment, τ = ``width`` ×
-    the median bone length), each bone's weight given to its parent joint (module docstring).
+    the median bone length), each bone's weight given to its parent joint (module docstring). With the
+    vertices' outward ``normals``, the bones in front of the skin are left out, as the field's weights
+    of a match that saw the skin (``"surface"``, :func:`ncflow.flow.skinning.surface_skinning_weights`).
 
     Args:
         vertices: (V, 3) the rest source.
         rest_positions: (J, 3) the skeleton at rest, topological order.
         parents: (J,) parents (−1 for the root, ``parents[j] < j``).
         width: τ as a fraction of the median bone length.
+        normals: (V, 3) the rest source's outward vertex normals, or None (the plain weights).
 
     Returns:
         (V, J) weights, rows summing to 1; joints that start no bone (leaves) get 0.
@@ -301,15 +305,13 @@ def skeleton_weights(
         raise InputError("the skeleton's median bone length and the skinning width must be positive")
     centre = p.mean(0)  # float32 inside JAX: work in coordinates of unit median bone length
     xs, ps = (x - centre) / scale, (p - centre) / scale
-    bone_w = np.asarray(
-        skinning_weights(
-            jnp.asarray(xs, jnp.float32),
-            jnp.asarray(ps[par[1:]], jnp.float32),
-            jnp.asarray(ps[1:], jnp.float32),
-            float(width),
-        ),
-        dtype=np.float64,
-    )
+    bones = jnp.asarray(ps[par[1:]], jnp.float32), jnp.asarray(ps[1:], jnp.float32)
+    if normals is None:
+        bone_w = skinning_weights(jnp.asarray(xs, jnp.float32), *bones, float(width))
+    else:
+        n = jnp.asarray(normals, jnp.float32)
+        bone_w = surface_skinning_weights(jnp.asarray(xs, jnp.float32), n, *bones, float(width))
+    bone_w = np.asarray(bone_w, dtype=np.float64)
     w = bone_w @ _joint_matrix(par)
     return w / w.sum(1, keepdims=True)
 

@@ -73,11 +73,15 @@ def sequence_motion(
     registered: Float[np.ndarray, "K V 3"],
     frame_joints: Float[np.ndarray, "K J 3"],
     skinning_width: float,
+    normals: Float[np.ndarray, "V 3"] | None = None,
 ) -> SequenceMotion:
-    """The skeleton's motion from its rest pose to every tracked frame (module docstring)."""
+    """The skeleton's motion from its rest pose to every tracked frame (module docstring); ``normals``:
+    the source's outward vertex normals where the matches' bone weights saw the skin
+    (:func:`ncflow.retarget.weights.skeleton_weights`).
+    """
     rest = np.asarray(rest_joints, np.float64)
     src = np.asarray(source_vertices, np.float64)
-    w_dense = skeleton_weights(src, rest, parents, skinning_width)
+    w_dense = skeleton_weights(src, rest, parents, skinning_width, normals)
     # joint_motion takes the bind pose as the last frame (the twist is measured against it)
     positions = np.concatenate([np.asarray(frame_joints, np.float64), rest[None]])
     meshes = np.concatenate([np.asarray(registered, np.float64), src[None]])

@@ -20,7 +20,7 @@ import numpy as np
 
 from ncflow import __version__
 from ncflow.config import Config, config_to_dict
-from ncflow.geometry.mesh import Mesh
+from ncflow.geometry.mesh import Mesh, outward_vertex_normals
 from ncflow.geometry.rigid import dense_weights, linear_blend_skinning
 from ncflow.io.atomic import atomic_path, atomic_write_text
 from ncflow.io.bvh import write_bvh
@@ -103,8 +103,10 @@ def write_sequence_outputs(
     registered = np.stack([load_mesh(out / "registered" / f"{r['stem']}.ply").vertices for r in ok])
     joints = np.asarray([r["joints"] for r in ok], np.float64)
     names = unique_names(list(skel.names or [None] * skel.n_joints))
+    seen = ok[0].get("weight_mode") == "surface"  # the frames' bone weights saw the skin
+    normals = outward_vertex_normals(source.vertices, source.faces) if seen else None
     motion = sequence_motion(
-        source.vertices, skel.positions, skel.parents, registered, joints, config.flow.skinning_width
+        source.vertices, skel.positions, skel.parents, registered, joints, config.flow.skinning_width, normals
     )
     morphs = morph_corrections(source.vertices, motion, registered)
     key_times = np.asarray([r["index"] for r in ok], np.float64) / fps
