@@ -21,7 +21,8 @@ from jaxtyping import Float
 from ncflow.flow.skinning import skin_contact
 from ncflow.geometry.cloud import PointCloud
 from ncflow.geometry.decimate import Decimation, decimate
-from ncflow.geometry.mesh import Mesh, face_areas, outward_vertex_normals
+from ncflow.geometry.laplacian import lumped_mass
+from ncflow.geometry.mesh import Mesh, outward_vertex_normals
 from ncflow.geometry.normalize import Normalization, fit_normalization
 from ncflow.geometry.overlap import self_overlap
 from ncflow.geometry.repair import Repair
@@ -292,7 +293,7 @@ def skinning_weight_mode(
         return out
     if skeleton is not None and skeleton.n_bones:
         v, f = np.asarray(source_vertices, np.float64), np.asarray(source_faces)
-        areas = np.bincount(f.ravel(), np.repeat(face_areas(v, f) / 3.0, 3), minlength=v.shape[0])
+        areas = lumped_mass(v, f)  # each vertex's share of the area
         pos, bones = np.asarray(skeleton.positions), np.asarray(skeleton.bones)
         heads, tails = pos[bones[:, 0]], pos[bones[:, 1]]
         if ranges is None:  # a bone's part outside the skin touches nothing

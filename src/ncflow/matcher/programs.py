@@ -50,11 +50,10 @@ def output_flow_program(skeleton, radii, ranges, n_times: int):
     @eqx.filter_jit
     def output_flow(field, points, normals, times, key):
         bones = sample_bones(skeleton, key, FINAL_BONE_SAMPLES, radius=radii, axial_range=ranges, dtype=DTYPE).points
-        bones = bones.reshape(-1, 3)
-        n = jnp.concatenate([normals, jnp.zeros_like(bones)])  # bone samples: no normal
-        xs, vs = integrate(field, jnp.concatenate([points, bones]), n_times, normals=n)
+        flat = bones.reshape(-1, 3)
+        n = jnp.concatenate([normals, jnp.zeros_like(flat)])  # bone samples: no normal
+        xs, vs = integrate(field, jnp.concatenate([points, flat]), n_times, normals=n)
         m = points.shape[0]
-        bones = bones.reshape(-1, FINAL_BONE_SAMPLES, 3)
         return hermite(xs[:, :m], vs[:, :m], times), bones, xs[:, m:].reshape(n_times, *bones.shape)
 
     return output_flow
