@@ -59,6 +59,20 @@ def test_a_second_run_reads_the_placement_and_pose_back_bit_for_bit(pair, tmp_pa
     assert calls == [1, 1]
     _, info3 = _run(pair, apply_overrides(cfg, ["flow.width=8", "frames=3"]), monkeypatch, calls)
     assert calls == [1, 1] and info3["hit"]
+    # the chain search is one of them; "auto" without skin-aware weights searches no chains: the same entry
+    _, info4 = _run(pair, apply_overrides(cfg, ["pose_chains=auto"]), monkeypatch, calls)
+    assert calls == [1, 1] and info4["hit"]
+    _run(pair, apply_overrides(cfg, ["pose_chains=on"]), monkeypatch, calls)
+    assert calls == [1, 1, 1]
+
+
+def test_the_chain_search_runs_where_pose_chains_asks():
+    cfg = preset("fast")
+    assert cfg.pose_chains == "off"
+    for value, plain, skin_aware in (("off", None, None), ("auto", None, prep.CHAIN_SIGMA), ("on", 0.1, 0.1)):
+        chosen = apply_overrides(cfg, [f"pose_chains={value}"])
+        assert prep.chain_sigma(chosen, False) == plain and prep.chain_sigma(chosen, True) == skin_aware
+    assert prep.chain_sigma(apply_overrides(cfg, ["pose_chains=on", "pose_search=false"]), True) is None
 
 
 def test_a_broken_entry_is_computed_again_and_the_cache_can_be_off(pair, tmp_path, monkeypatch):

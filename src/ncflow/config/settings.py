@@ -282,7 +282,10 @@ class Config:
     ``placement`` (``auto`` | ``none``): move the target rigidly onto the source before matching
     (any rotation; :mod:`ncflow.matcher.placement`), outputs moved back; ``none`` trusts the input
     placement. ``pose_search``: search the skeleton pose that best explains the target before the
-    flow trains (:mod:`ncflow.matcher.pose_search`; with ``flow.skinning`` only).
+    flow trains (:mod:`ncflow.matcher.pose_search`; with ``flow.skinning`` only). ``pose_chains``
+    (``auto`` | ``on`` | ``off``): after that search, re-pose each finger or limb with the others held
+    at a finer kernel scale (:func:`ncflow.matcher.pose_search.search_chains`); ``auto``: where the
+    source's limbs touch (bone weights ``"surface"``, whose first phase holds the searched pose).
     ``working_vertices``: train on a decimated copy of a source larger than this (its vertices a
     subset of the source's, :func:`ncflow.geometry.decimate.decimate`); the outputs and the
     correspondence are computed at full resolution with the trained field. ``none``: train on the
@@ -319,6 +322,9 @@ class Config:
     divergence_guard: float = setting(2.0, check=lambda v: v == 0 or v > 1, message="{name} must be 0 (off) or above 1")
     placement: str = setting("auto", choices=("auto", "none"), message="{name} must be 'auto' or 'none'")
     pose_search: bool = setting(True)
+    pose_chains: str = setting(
+        "off", choices=("auto", "on", "off"), message="{name} must be 'auto', 'on' or 'off'"
+    )
     jit_cache: str = setting("auto", check=jit_cache_problem, neutral=True)
     compile_ahead: bool = setting(True, neutral=True)
     setup_cache: bool = setting(True, neutral=True)

@@ -66,6 +66,18 @@ def searches_pose(config) -> bool:
     return bool(config.pose_search and config.flow.skinning)
 
 
+CHAIN_SIGMA = 0.1
+"""Kernel scale of the chain search (normalised units; :func:`ncflow.matcher.pose_search.search_chains`)."""
+
+
+def chain_sigma(config, skin_aware: bool) -> float | None:
+    """The chain search's kernel scale when ``pose_chains`` asks for it (``auto``: where the bone weights
+    see the skin, ``skin_aware``), else None.
+    """
+    on = config.pose_chains == "on" or (config.pose_chains == "auto" and skin_aware)
+    return CHAIN_SIGMA if on and searches_pose(config) else None
+
+
 CLOSE_SCORE = 0.03
 """Pose scores of two placements within this share of the better one are a close call (:func:`close_call`)."""
 
@@ -128,6 +140,7 @@ def place_and_pose(
             skinning_width=skinning_width(config, skeleton),
             seed=seed,
             skin_aware=skin_aware,
+            chain_sigma=chain_sigma(config, skin_aware),
         )
 
     results = search(range(len(placements)), config.seed)
@@ -166,7 +179,14 @@ def _setup_key(src_v, src_f, tgt_v, tgt_f, skeleton: Skeleton, config, skin_awar
     for a in (src_f, tgt_f, skeleton.parents):
         h.update(np.ascontiguousarray(a, np.int64).tobytes())
         h.update(repr(np.shape(a)).encode())
-    settings = (config.placement, searches_pose(config), skinning_width(config, skeleton), config.seed, skin_aware)
+    settings = (
+        config.placement,
+        searches_pose(config),
+        skinning_width(config, skeleton),
+        config.seed,
+        skin_aware,
+        chain_sigma(config, skin_aware),
+    )
     h.update(repr(settings).encode())
     h.update(code_digest().encode())
     return h.hexdigest()[:32]
