@@ -322,9 +322,7 @@ class Config:
     divergence_guard: float = setting(2.0, check=lambda v: v == 0 or v > 1, message="{name} must be 0 (off) or above 1")
     placement: str = setting("auto", choices=("auto", "none"), message="{name} must be 'auto' or 'none'")
     pose_search: bool = setting(True)
-    pose_chains: str = setting(
-        "off", choices=("auto", "on", "off"), message="{name} must be 'auto', 'on' or 'off'"
-    )
+    pose_chains: str = setting("off", choices=("auto", "on", "off"), message="{name} must be 'auto', 'on' or 'off'")
     jit_cache: str = setting("auto", check=jit_cache_problem, neutral=True)
     compile_ahead: bool = setting(True, neutral=True)
     setup_cache: bool = setting(True, neutral=True)
