@@ -94,16 +94,39 @@ def test_points_near_a_bone_axis_move_rigidly_with_it(interp):
     z = rng.uniform(0.3, 0.7, size=(skel.n_bones, 12, 1))
     pts = a[:, None] + z * (b - a)[:, None] + 0.05 * rng.uniform(-1, 1, size=(skel.n_bones, 12, 3)) / np.sqrt(3)
     errors = []
-    for n_times in (10, 20):
+    for n_times in (3, 10, 20):
         xs = jax.jit(lambda p, n=n_times: flow_points(field, p, n))(jnp.asarray(pts.reshape(-1, 3)))
         xs = xs.reshape(n_times, *pts.shape)
         ref = jax.jit(lambda p, t: rigid_reference(skel, pose, p, t, interp))(
             jnp.asarray(pts), time_grid(n_times, jnp.float64)
         )
         errors.append(float(jnp.max(jnp.linalg.norm(xs - ref, axis=-1))))
-    # the only error left is the integrator's (second order): it falls ~4x per halving of h
-    assert errors[0] < 0.02, errors
-    assert errors[1] < errors[0] / 3, errors
+    # the bones' motions are stepped in closed form: what is left is the neighbours' weight (≤ e^-10 of
+    # theirs), on any grid (the Heun recursion on the velocities was 0.016 off at T = 10)
+    assert max(errors) < 1e-3, errors
+
+
+def test_points_of_one_bone_keep_its_rigid_motion_through_large_turns():
+    """A chain curled by 90° at each of three joints (its last bone turns 270°), flowed on a coarse grid:
+    points in a bone's core move with that bone to 1e-5 (no integrator error: the rigid core's weights are
+    the bone's alone; measured 1e-14, and 3e-6 with "current" weights), in every weight mode, where the
+    Heun recursion on the velocities left the last bone's samples hundreds of tolerances off at T = 10.
+    """
+    pos = np.array([[0, 0, 0], [0, 0, 1.0], [0, 0, 2.0], [0, 0, 3.0], [0, 0, 3.7]])
+    skel = Skeleton.from_arrays(pos, np.array([-1, 0, 1, 2, 3]))
+    turns = [[0, 0, 0], [np.pi / 2, 0, 0], [np.pi / 2, 0, 0], [np.pi / 2, 0, 0], [0, 0, 0]]
+    pose = Pose(jnp.stack([quat_from_rotvec(jnp.asarray(v, jnp.float64)) for v in turns]), jnp.zeros(3))
+    samples = sample_bones(skel, jax.random.key(0), 20, radius=0.1, dtype=jnp.float64)
+    pts = jnp.asarray(samples.flat())
+    for mode in ("current", "start", "surface"):
+        field = SkinnedField(
+            _residual(alpha=0.3), skel, pose, 0.05, dtype=jnp.float64, weight_mode=mode, core=0.1 * skel.bone_lengths
+        )
+        for n_times in (3, 10):
+            xs = eqx.filter_jit(lambda f, p, n=n_times: flow_points(f, p, n))(field, pts)
+            ref = rigid_reference(skel, field.swing_pose(), samples.points, time_grid(n_times, jnp.float64))
+            err = float(jnp.max(jnp.linalg.norm(xs.reshape(ref.shape) - ref, axis=-1)))
+            assert err < 1e-5, (mode, n_times, err)
 
 
 def _turn(deg):
@@ -184,8 +207,9 @@ def test_skinned_flow_matches_an_independent_ode_solution(mode):
     ref = solve_ivp(rhs, (0.0, 1.0), x0.reshape(-1), rtol=1e-9, atol=1e-11).y[:, -1].reshape(-1, 3)
     ends = [jax.jit(lambda x, n=n: flow_points(field, x, n, normals=n0)[-1])(jnp.asarray(x0)) for n in (20, 40)]
     errors = [float(np.abs(np.asarray(end) - ref).max()) for end in ends]
+    # the bones' motions are stepped in closed form and blended per step: first order where weights blend
     assert errors[0] < 5e-3, errors
-    assert errors[1] < errors[0] / 3, errors  # second order: the error is the integrator's
+    assert errors[1] < errors[0] / 1.7, errors
 
 
 def test_pose_gradient_is_finite_at_rest_and_moves_the_points():
@@ -315,7 +339,7 @@ def test_a_rigid_core_moves_the_bone_samples_with_the_skeleton_alone():
     samples = sample_bones(skel, jax.random.key(3), 12, radius=rho, dtype=jnp.float64).flat()
     flow = eqx.filter_jit(lambda f, p: flow_points(f, p, 10))
     for mode in ("current", "start"):
-        for width, leak in ((0.02, 1e-12), (0.05, 1e-3)):
+        for width, leak in ((0.02, 1e-4), (0.05, 1e-3)):
             gated = SkinnedField(
                 _residual(alpha=0.3), skel, pose, width, dtype=jnp.float64, weight_mode=mode, core=core
             )
@@ -440,3 +464,30 @@ def test_skin_contact_against_a_brute_force():
     expected = float(w @ moved / w.sum())
     assert 0.05 < expected < 0.95  # the draw exercises both cases
     assert skin_contact(x, n, w, heads, tails) == pytest.approx(expected, abs=2.0 / 300)
+
+
+def test_core_weights_are_the_bones_own_inside_its_core_and_a_partition_of_unity():
+    """Inside bone b's core the weights are e_b, though at the joint the other bones' core ramps reach
+    the point (to 1e-4 where a ramp is at 0.8 of its height, e^{-0.2/κ}; 1e-11 at 0.5); beyond every outer
+    radius they are the plain weights; rows sum to 1 and move continuously with x."""
+    from ncflow.flow.skinning import core_memberships, core_weights
+
+    skel = _skeleton()
+    heads = jnp.asarray(POSITIONS[skel.bones[:, 0]])
+    tails = jnp.asarray(POSITIONS[skel.bones[:, 1]])
+    radius = 0.1 * np.asarray(skel.bone_lengths)
+    core = jnp.asarray(np.column_stack([radius, 2.5 * radius, np.tile([0.1, 0.9], (skel.n_bones, 1))]))
+    x = jnp.asarray([[0.0, 0.0, 0.9], [0.0, 0.0, 1.1], [0.0, 0.08, 1.12], [0.0, 0.6, 0.4], [0.0, -0.1, 1.0]])
+    plain = skinning_weights(x, heads, tails, 0.3)
+    w = np.asarray(core_weights(plain, x, heads, tails, core))
+    m = np.asarray(core_memberships(x, heads, tails, core[:, 0], core[:, 1], core[:, 2:]))
+    np.testing.assert_allclose(w.sum(1), 1.0, atol=1e-12)
+    assert m[2, 1] == 1.0 and 0.0 < m[2, 3] < 1.0  # in bone 1's core, in the ramp of the side bone's
+    np.testing.assert_allclose(w[:2], np.eye(skel.n_bones)[[0, 1]], atol=1e-4)
+    np.testing.assert_allclose(w[2], np.eye(skel.n_bones)[1], atol=1e-10)
+    np.testing.assert_allclose(w[3], np.asarray(plain)[3], atol=1e-12)  # far from every core
+    assert 0.0 < m[4].max() < 1.0 and np.all(np.abs(w[4] - np.asarray(plain)[4]) > 0)  # the joint: blended
+    # continuity: a small step moves the weights a little
+    step = np.asarray(core_weights(skinning_weights(x + 1e-6, heads, tails, 0.3), x + 1e-6, heads, tails, core))
+    assert np.abs(step - w).max() < 1e-3
+    assert core_weights(plain, x, heads, tails, None) is plain

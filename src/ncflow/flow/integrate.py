@@ -68,7 +68,9 @@ def integrate(
     A field with an ``on_grid(n_times, dtype, x0, n0)`` method (:class:`~ncflow.flow.SkinnedField`) is
     replaced by what it returns: the same field with its time-only parts tabulated on the grid and
     its parts that depend on each point's start (the skinned field's bone weights) computed at x0
-    (and ``normals``).
+    (and ``normals``). When that grid field has an articulated part it can step in closed form
+    (``articulated_step``), the recursion moves points by it exactly and applies the Heun-type update to
+    the rest (:func:`_integrate_split`).
     """
     x0 = jnp.asarray(x0)
     ts = time_grid(n_times, x0.dtype)
@@ -80,6 +82,8 @@ def integrate(
     def f(x, t):
         return g(x, t).astype(x0.dtype)
 
+    if hasattr(field, "articulated_step"):
+        return _integrate_split(field, x0, ts, h, checkpoint)
     v0 = f(x0, ts[0])
 
     def step(carry, t_next):
@@ -89,6 +93,38 @@ def integrate(
         return (x_next, v_next), (x_next, v_next)
 
     _, (xs, vs) = jax.lax.scan(step, (x0, v0), ts[1:])
+    return jnp.concatenate([x0[None], xs]), jnp.concatenate([v0[None], vs])
+
+
+def _integrate_split(field, x0, ts, h, checkpoint):
+    """The recursion above for a field F = S + R whose articulated part S moves points by bones' rigid
+    motions known in closed form (a skinned field on the grid, :meth:`articulated_step`): each step
+    carries x_k by S exactly (no error however far a bone turns in one step) and adds R by the same
+    Heun-type update, x̃ = S_k(x_k) + h r_k, r_{k+1} = R(x̃, t_{k+1}), x_{k+1} = S_k(x_k) + h/2 (r_k + r_{k+1});
+    the stored slopes are v_k = S'(x_k, t_k) + r_k (for the dense output).
+    """
+    r_fn = field.residual_velocity
+    if checkpoint:
+        r_fn = eqx.filter_checkpoint(r_fn)
+
+    def r(x, t):
+        return r_fn(x, t).astype(x0.dtype)
+
+    w0 = field.weights_at(x0, 0)
+    r0 = r(x0, ts[0])
+    v0 = field.skeleton_velocity(x0, 0, w0).astype(x0.dtype) + r0
+
+    def step(carry, inputs):
+        x, r_k, w = carry
+        k, t_next = inputs
+        y = field.articulated_step(x, k, w).astype(x0.dtype)
+        r_next = r(y + h * r_k, t_next)
+        x_next = y + 0.5 * h * (r_k + r_next)
+        w_next = field.weights_at(x_next, k + 1)
+        v_next = field.skeleton_velocity(x_next, k + 1, w_next).astype(x0.dtype) + r_next
+        return (x_next, r_next, w_next), (x_next, v_next)
+
+    _, (xs, vs) = jax.lax.scan(step, (x0, r0, w0), (jnp.arange(ts.shape[0] - 1), ts[1:]))
     return jnp.concatenate([x0[None], xs]), jnp.concatenate([v0[None], vs])
 
 

@@ -38,6 +38,18 @@ Where the weights are taken (``weight_mode``):
 The matcher chooses between them per pair (``flow.skinning_weights = "auto"``, see
 :func:`ncflow.matcher.prepare.skinning_weight_mode`).
 
+Rigid cores (``core``): inside the cylinder around each bone where its samples lie, the Flow-Net is
+faded out (:func:`core_gate`) and the weights are the bone's alone (:func:`core_weights`: near a bent
+joint the plain weights blend the neighbouring bone's motion into the samples' ends), so the field
+there is that bone's rigid velocity. On the integrator's grid the bones' motions are stepped in closed
+form (:meth:`_GridSkinnedField.articulated_step`: each point moved by the blend of its bones' rigid
+motions from t_k to t_{k+1}; :func:`ncflow.flow.integrate.integrate`), the Flow-Net by the Heun-type
+recursion: a bone's samples then keep its rigid motion to rounding however far it turns over one of
+the T − 1 steps, where the Heun recursion on the velocities left a fingertip that turns 270° over
+nine steps hundreds of tolerances off rigid (and the constraints pulled the finger's pose back towards
+less turn; benchmarks/RESULTS.md, session 34). Where weights blend (near joints) the closed-form steps
+are first order in the step (the blend of rigid steps is not the step of the blended velocity).
+
 This is not in the paper: there the Flow-Net alone has to produce the articulated motion and the
 bone constraints (MDMM) make it rigid around the bones. With the small network and the few
 hundred steps that fit a CPU budget, that leaves the bones several times the tolerance from
@@ -184,13 +196,47 @@ def core_gate(
     γ = min_b h(clip((d_b(x) − r_b)/(o_b − r_b), 0, 1)), d_b the distance to bone b's core segment,
     h(u) = 3u² − 2u³ (C¹: the field stays Lipschitz).
     """
+    return 1.0 - jnp.max(core_memberships(x, heads, tails, radius, outer, axial_range), axis=-1)
+
+
+def core_memberships(
+    x: Float[Array, "N 3"],
+    heads: Float[Array, "B 3"],
+    tails: Float[Array, "B 3"],
+    radius: Float[ArrayLike, " B"],
+    outer: Float[ArrayLike, " B"],
+    axial_range: tuple[float, float] | Float[ArrayLike, "B 2"] = DEFAULT_AXIAL_RANGE,
+) -> Float[Array, "N B"]:
+    """m_b(x) = 1 − h(clip((d_b(x) − r_b)/(o_b − r_b), 0, 1)) per bone (:func:`core_gate`'s terms): 1 inside
+    bone b's core, 0 beyond its outer radius (and for a bone of radius 0); γ = 1 − max_b m_b.
+    """
     rng = jnp.broadcast_to(jnp.asarray(axial_range, x.dtype), (heads.shape[0], 2))
     lo, hi = rng[:, :1], rng[:, 1:]
     d = _segment_distance(x, heads + lo * (tails - heads), heads + hi * (tails - heads))
     r, o = jnp.asarray(radius, x.dtype), jnp.asarray(outer, x.dtype)
-    u = jnp.where(r > 0, (d - r) / jnp.where(r > 0, o - r, 1.0), 1.0)
-    u = jnp.clip(jnp.min(u, axis=-1), 0.0, 1.0)
-    return u * u * (3.0 - 2.0 * u)
+    u = jnp.clip(jnp.where(r > 0, (d - r) / jnp.where(r > 0, o - r, 1.0), 1.0), 0.0, 1.0)
+    return 1.0 - u * u * (3.0 - 2.0 * u)
+
+
+def core_weights(
+    weights: Float[Array, "N B"], x: Float[Array, "N 3"], heads: Float[Array, "B 3"], tails: Float[Array, "B 3"], core
+) -> Float[Array, "N B"]:
+    """Bone weights taken over by the rigid cores: w' = (1 − C) w + C softmax_b(m_b / κ), with m the
+    :func:`core_memberships` of x, C = max_b m_b and κ = :data:`CORE_SHARPNESS`, so that a point inside
+    bone b's core (m_b = 1) has the weight of b alone — its bone's rigid motion, not a blend with the
+    neighbouring bone's near a bent joint, whose core ramp may reach it (m < 1: a share e^{−(1 − m)/κ}) —
+    and the weights stay continuous (a tie between two cores splits evenly); ``core`` (B, 4) as
+    :class:`SkinnedField` holds it, None: w unchanged.
+    """
+    if core is None:
+        return weights
+    m = core_memberships(x, heads, tails, core[:, 0], core[:, 1], core[:, 2:]).astype(weights.dtype)
+    c = jnp.max(m, axis=-1, keepdims=True)
+    return (1.0 - c) * weights + c * jax.nn.softmax(m / CORE_SHARPNESS, axis=-1)
+
+
+CORE_SHARPNESS = 0.02
+"""κ of :func:`core_weights`: a neighbouring core's ramp at 0.7 of its height leaves it a weight of e^{−15}."""
 
 
 class SkinnedField(eqx.Module):
@@ -270,13 +316,15 @@ class SkinnedField(eqx.Module):
         return swing_only(self.skeleton, self.pose)
 
     def _motion(self, t):
-        """(heads, tails, c, Ω, ċ) of every bone at time t: its posed segment and its velocity."""
+        """(heads, tails, c, Ω, ċ, R) of every bone at time t: its posed segment, its velocity and its
+        rotation from rest (x ↦ R x + c moves the rest bone to time t).
+        """
         r, c, dr, dc = bone_velocities(self.skeleton, self.swing_pose(), t, self.interp)
         bones = np.asarray(self.skeleton.bones)
         rest = jnp.asarray(self.skeleton.positions, r.dtype)
         heads = jnp.einsum("bij,bj->bi", r, rest[bones[:, 0]], precision=_HIGHEST) + c
         tails = jnp.einsum("bij,bj->bi", r, rest[bones[:, 1]], precision=_HIGHEST) + c
-        return heads, tails, c, jnp.einsum("bij,bkj->bik", dr, r, precision=_HIGHEST), dc  # Ω = Ṙ Rᵀ
+        return heads, tails, c, jnp.einsum("bij,bkj->bik", dr, r, precision=_HIGHEST), dc, r  # Ω = Ṙ Rᵀ
 
     def weights(
         self,
@@ -304,7 +352,7 @@ class SkinnedField(eqx.Module):
 
     def skeleton_velocity(self, x: Float[Array, "N 3"], t: Float[Array, ""] | float) -> Float[Array, "N 3"]:
         """The articulated part Σ_b w_b ξ_b(x) at points x (N, 3) and time t (x taken as the start too)."""
-        return _blend(x, self._motion(t), self._width())
+        return _blend(x, self._motion(t), self._width(), None, self._core())
 
     def _core(self) -> Float[Array, "B 4"] | None:
         return None if self.core is None else jax.lax.stop_gradient(self.core)
@@ -312,7 +360,9 @@ class SkinnedField(eqx.Module):
     def __call__(self, x: Float[Array, "N 3"], t: Float[Array, ""] | float) -> Float[Array, "N 3"]:
         """Velocities at points x (N, 3) and time t (scalar), x taken as the start too."""
         motion = self._motion(t)
-        return _blend(x, motion, self._width()) + _gated(self.residual(x, t), x, motion, self._core())
+        return _blend(x, motion, self._width(), None, self._core()) + _gated(
+            self.residual(x, t), x, motion, self._core()
+        )
 
     def on_grid(
         self,
@@ -331,7 +381,9 @@ class SkinnedField(eqx.Module):
         motion = jax.vmap(self._motion)(times)
         fixed = None
         if self.weight_mode != "current" and x0 is not None:
-            fixed = self._start_weights(jnp.asarray(x0), n0, motion[0][0], motion[1][0])  # bones at t_0 = 0
+            x0 = jnp.asarray(x0)
+            heads, tails = motion[0][0], motion[1][0]  # bones at t_0 = 0
+            fixed = core_weights(self._start_weights(x0, n0, heads, tails), x0, heads, tails, self._core())
         return _GridSkinnedField(self.residual, motion, self._width(), self._core(), n_times, fixed)
 
 
@@ -339,9 +391,14 @@ WEIGHT_MODES = ("current", "start", "surface")
 """Where a :class:`SkinnedField` takes its bone weights: at each point's current place or its start."""
 
 
-def _blend(x, motion, width, fixed=None):
-    heads, tails, c, omega, dc = motion
-    w = (skinning_weights(x, heads, tails, width) if fixed is None else fixed).astype(x.dtype)  # (N, B)
+def _current_weights(x, motion, width, core):
+    heads, tails = motion[0], motion[1]
+    return core_weights(skinning_weights(x, heads, tails, width), x, heads, tails, core)
+
+
+def _blend(x, motion, width, fixed=None, core=None):
+    heads, tails, c, omega, dc = motion[:5]
+    w = (_current_weights(x, motion, width, core) if fixed is None else fixed).astype(x.dtype)  # (N, B)
     # Σ_b w_b (Ω_b x + k_b), k_b = ċ_b − Ω_b c_b, as two matrix products
     k = (dc - jnp.einsum("bij,bj->bi", omega, c, precision=_HIGHEST)).astype(x.dtype)
     wx = (w[:, :, None] * x[:, None, :]).reshape(x.shape[0], -1)  # (N, 3B)
@@ -361,11 +418,40 @@ class _GridSkinnedField(eqx.Module):
     n_times: int = eqx.field(static=True)
     fixed: Array | None = None
 
-    def __call__(self, x, t):
+    def _at(self, t):
         k = jnp.clip(jnp.round(jnp.asarray(t) * (self.n_times - 1)), 0, self.n_times - 1).astype(jnp.int32)
-        motion = tuple(m[k] for m in self.motion)
-        residual = _gated(self.residual(x, t), x, motion, self.core)
-        return _blend(x, motion, self.width, self.fixed) + residual
+        return tuple(m[k] for m in self.motion)
+
+    def __call__(self, x, t):
+        motion = self._at(t)
+        return _blend(x, motion, self.width, self.fixed, self.core) + _gated(self.residual(x, t), x, motion, self.core)
+
+    def weights_at(self, x, k):
+        """The bone weights (N, B) of points x at grid index k (those of the start when fixed)."""
+        if self.fixed is not None:
+            return self.fixed.astype(x.dtype)
+        return _current_weights(x, tuple(m[k] for m in self.motion), self.width, self.core).astype(x.dtype)
+
+    def skeleton_velocity(self, x, k, w):
+        """The articulated part of the velocity at grid index k, with the bone weights w (:meth:`weights_at`)."""
+        return _blend(x, tuple(m[k] for m in self.motion), self.width, w)
+
+    def residual_velocity(self, x, t):
+        """The gated Flow-Net part of the velocity at grid time t."""
+        return _gated(self.residual(x, t), x, self._at(t), self.core)
+
+    def articulated_step(self, x, k, w):
+        """Where the bones' motions carry points x from grid time t_k to t_{k+1}, exactly:
+        Σ_b w_b (A_b x + d_b), A_b = R_b(t_{k+1}) R_b(t_k)ᵀ, d_b = c_b(t_{k+1}) − A_b c_b(t_k), with the weights
+        w (N, B) at t_k (:meth:`weights_at`). A point of one bone (a rigid core) moves with that bone's rigid
+        motion, however far the bone turns over the step.
+        """
+        r0, c0 = self.motion[5][k], self.motion[2][k]
+        r1, c1 = self.motion[5][k + 1], self.motion[2][k + 1]
+        a = jnp.einsum("bij,bkj->bik", r1, r0, precision=_HIGHEST)  # (B, 3, 3)
+        d = (c1 - jnp.einsum("bij,bj->bi", a, c0, precision=_HIGHEST)).astype(x.dtype)
+        wx = (w[:, :, None] * x[:, None, :]).reshape(x.shape[0], -1)  # (N, 3B)
+        return _mm(wx, jnp.swapaxes(a, 1, 2).reshape(-1, 3).astype(x.dtype)) + _mm(w, d)
 
 
 def _gated(residual, x, motion, core):

@@ -185,6 +185,16 @@ def bone_cores(
     return cores, (1.0 + ramp) * cores
 
 
+def fit_start(field, pose: Pose) -> Pose:
+    """Where the per-step pose fit starts: the pose the skeleton-driven field moves its bones by (its
+    swing pose: its cores carry the bone samples with exactly that motion, so the fit starts at its
+    answer), else ``pose`` (the previous step's fit). The fit's steps are capped (a trust region), so a
+    start from the previous step's fit lagged behind a pose that trains quickly and left a g the flow
+    did not make.
+    """
+    return jax.lax.stop_gradient(field.swing_pose()) if hasattr(field, "swing_pose") else pose
+
+
 def objective(
     params: Params,
     pose: Pose,
@@ -255,7 +265,8 @@ def objective(
     fw = constraint_fit_weights(
         s.n_times, bones.shape[0], DTYPE, lam[0] * phase_weights[0], lam[1] * phase_weights[1], s.trajectory_weight
     )
-    pose = fit_pose(arrays.skeleton, pose, bones, jax.lax.stop_gradient(flowed_bones), times, s.interp, weights=fw)
+    start = fit_start(params.flow, pose)
+    pose = fit_pose(arrays.skeleton, start, bones, jax.lax.stop_gradient(flowed_bones), times, s.interp, weights=fw)
     pose = jax.lax.stop_gradient(pose)
     reference = rigid_reference(arrays.skeleton, pose, bones, times, s.interp)
     g_ep, g_tr = bone_constraints(flowed_bones, reference)

@@ -30,6 +30,7 @@ from ncflow.geometry.normalize import Normalization
 from ncflow.io.fallback import save_result
 from ncflow.io.result import ResultFolder
 from ncflow.matcher.correspondence import correspondence_maps
+from ncflow.matcher.objective import fit_start
 from ncflow.matcher.place import Placed
 from ncflow.matcher.placement import Placement
 from ncflow.matcher.prepare import DTYPE, Setup
@@ -198,7 +199,7 @@ def build_result(
         raise TrainingError("the trained flow produced non-finite positions")
     cw = trained.phase_weights
     pose, g_ep, g_tr, joints = final_pose(
-        arrays, cfg, state.pose, bones, states, state.lam, cw, frame_times, outputs.refit
+        arrays, cfg, fit_start(field, state.pose), bones, states, state.lam, cw, frame_times, outputs.refit
     )
     src_r, tgt_r = setup.source_repair, setup.target_repair
     target_points = placed.placement.apply(setup.target_points)
