@@ -112,7 +112,7 @@ def _integrate_split(field, x0, ts, h, checkpoint):
 
     w0 = field.weights_at(x0, 0)
     r0 = r(x0, ts[0])
-    v0 = field.skeleton_velocity(x0, 0, w0).astype(x0.dtype) + r0
+    v0 = field.articulated_velocity(x0, 0, w0).astype(x0.dtype) + r0
 
     def step(carry, inputs):
         x, r_k, w = carry
@@ -121,7 +121,7 @@ def _integrate_split(field, x0, ts, h, checkpoint):
         r_next = r(y + h * r_k, t_next)
         x_next = y + 0.5 * h * (r_k + r_next)
         w_next = field.weights_at(x_next, k + 1)
-        v_next = field.skeleton_velocity(x_next, k + 1, w_next).astype(x0.dtype) + r_next
+        v_next = field.articulated_velocity(x_next, k + 1, w_next).astype(x0.dtype) + r_next
         return (x_next, r_next, w_next), (x_next, v_next)
 
     _, (xs, vs) = jax.lax.scan(step, (x0, r0, w0), (jnp.arange(ts.shape[0] - 1), ts[1:]))

@@ -396,13 +396,17 @@ def _current_weights(x, motion, width, core):
     return core_weights(skinning_weights(x, heads, tails, width), x, heads, tails, core)
 
 
+def _affine_blend(x, w, mats, offsets):
+    """Σ_b w_b (M_b x + o_b) for (N, B) weights, (B, 3, 3) matrices and (B, 3) offsets, as two matrix products."""
+    wx = (w[:, :, None] * x[:, None, :]).reshape(x.shape[0], -1)  # (N, 3B)
+    return _mm(wx, jnp.swapaxes(mats, 1, 2).reshape(-1, 3).astype(x.dtype)) + _mm(w, offsets.astype(x.dtype))
+
+
 def _blend(x, motion, width, fixed=None, core=None):
     heads, tails, c, omega, dc = motion[:5]
     w = (_current_weights(x, motion, width, core) if fixed is None else fixed).astype(x.dtype)  # (N, B)
-    # Σ_b w_b (Ω_b x + k_b), k_b = ċ_b − Ω_b c_b, as two matrix products
-    k = (dc - jnp.einsum("bij,bj->bi", omega, c, precision=_HIGHEST)).astype(x.dtype)
-    wx = (w[:, :, None] * x[:, None, :]).reshape(x.shape[0], -1)  # (N, 3B)
-    return _mm(wx, jnp.swapaxes(omega, 1, 2).reshape(-1, 3).astype(x.dtype)) + _mm(w, k)
+    # Σ_b w_b (Ω_b x + k_b), k_b = ċ_b − Ω_b c_b
+    return _affine_blend(x, w, omega, dc - jnp.einsum("bij,bj->bi", omega, c, precision=_HIGHEST))
 
 
 class _GridSkinnedField(eqx.Module):
@@ -432,7 +436,7 @@ class _GridSkinnedField(eqx.Module):
             return self.fixed.astype(x.dtype)
         return _current_weights(x, tuple(m[k] for m in self.motion), self.width, self.core).astype(x.dtype)
 
-    def skeleton_velocity(self, x, k, w):
+    def articulated_velocity(self, x, k, w):
         """The articulated part of the velocity at grid index k, with the bone weights w (:meth:`weights_at`)."""
         return _blend(x, tuple(m[k] for m in self.motion), self.width, w)
 
@@ -449,9 +453,7 @@ class _GridSkinnedField(eqx.Module):
         r0, c0 = self.motion[5][k], self.motion[2][k]
         r1, c1 = self.motion[5][k + 1], self.motion[2][k + 1]
         a = jnp.einsum("bij,bkj->bik", r1, r0, precision=_HIGHEST)  # (B, 3, 3)
-        d = (c1 - jnp.einsum("bij,bj->bi", a, c0, precision=_HIGHEST)).astype(x.dtype)
-        wx = (w[:, :, None] * x[:, None, :]).reshape(x.shape[0], -1)  # (N, 3B)
-        return _mm(wx, jnp.swapaxes(a, 1, 2).reshape(-1, 3).astype(x.dtype)) + _mm(w, d)
+        return _affine_blend(x, w, a, c1 - jnp.einsum("bij,bj->bi", a, c0, precision=_HIGHEST))
 
 
 def _gated(residual, x, motion, core):
