@@ -57,6 +57,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     sug.add_argument("mesh", help="mesh file (OBJ/PLY/OFF/STL/GLB)")
     sug.add_argument("--out", required=True, metavar="SKELETON", help="output skeleton (.tgf or .json)")
+    sug.add_argument(
+        "--other-pose",
+        action="append",
+        default=[],
+        metavar="MESH",
+        help="the same body in another pose (any triangulation; repeatable): joints go where its limbs bend, "
+        "as ncflow match does with its target",
+    )
     sug.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     sug.set_defaults(func=run_suggest)
 
@@ -165,8 +173,14 @@ def run_suggest(args: argparse.Namespace) -> int:
     real = output_file(args.out, option="--out")
     start = time.perf_counter()
     mesh = repaired_mesh(load_mesh(args.mesh))[0]
+    others = []
+    for path in args.other_pose:
+        other = repaired_mesh(load_mesh(path))[0]
+        if other.faces.shape[0] < 20:
+            raise InputError(f"has {other.faces.shape[0]} faces: too few to show a pose", path)
+        others.append((other.vertices, other.faces))
     try:
-        found = suggest_skeleton(mesh.vertices, mesh.faces, name=Path(args.mesh).stem)
+        found = suggest_skeleton(mesh.vertices, mesh.faces, name=Path(args.mesh).stem, other_poses=others)
     except InputError as err:
         raise InputError(str(err), args.mesh) from None
     skel = found.skeleton
@@ -174,8 +188,9 @@ def run_suggest(args: argparse.Namespace) -> int:
     with atomic_path(real) as tmp:
         save_skeleton(tmp, skel)
     print(
-        f"wrote {args.out}: {skel.n_joints} joints, {skel.n_bones} bones, {found.n_leaves} limb tips "
-        f"({time.perf_counter() - start:.1f} s)"
+        f"wrote {args.out}: {skel.n_joints} joints, {skel.n_bones} bones, {found.n_leaves} limb tips"
+        + (f", {found.bends_seen} cut where the other poses bend" if others else "")
+        + f" ({time.perf_counter() - start:.1f} s)"
     )
     for warning in check_inside(skel, mesh.vertices, mesh.faces):
         print(f"warning: {warning}")

@@ -116,17 +116,21 @@ def bone_radii(config, skeleton: Skeleton, flesh: Float[np.ndarray, " B"]) -> Fl
     return radii
 
 
-def suggested_skeleton(src, message=lambda text: None) -> tuple[Skeleton, dict]:
-    """A skeleton suggested for the repaired source (:func:`ncflow.skeleton.suggest.suggest_skeleton`) and
-    what ``metrics.json`` says of it (``n_joints``, ``n_leaves``, ``moved_inside``, ``seconds``).
+def suggested_skeleton(src, message=lambda text: None, others=()) -> tuple[Skeleton, dict]:
+    """A skeleton suggested for the repaired source (:func:`ncflow.skeleton.suggest.suggest_skeleton`; the
+    repaired target or frames ``others``, meshes of the same body in other poses, show where the source's
+    limbs bend) and what ``metrics.json`` says of it
+    (``n_joints``, ``n_leaves``, ``moved_inside``, ``bends_seen``, ``seconds``).
     """
     message("no skeleton given: suggesting one from the source ...")
     t0 = time.perf_counter()
-    found = suggest_skeleton(src.vertices, src.faces, name=f"{src.name or 'source'} (suggested)")
+    poses = [(m.vertices, m.faces) for m in others if m.faces.shape[0] >= 20]
+    found = suggest_skeleton(src.vertices, src.faces, name=f"{src.name or 'source'} (suggested)", other_poses=poses)
     info = {
         "n_joints": found.skeleton.n_joints,
         "n_leaves": found.n_leaves,
         "moved_inside": found.moved_inside,
+        "bends_seen": found.bends_seen,
         "seconds": time.perf_counter() - t0,
         "file": "skeleton_source.tgf",
     }
@@ -193,7 +197,7 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Setu
     )
     suggested = None
     if skel is None:
-        skel, suggested = suggested_skeleton(src_c, message)
+        skel, suggested = suggested_skeleton(src_c, message, [tgt_c])
     tgt_f, warnings = check_inputs(src_c, tgt_c, skel)
     warnings = src_note + tgt_note + warnings
     if suggested is not None:

@@ -1,34 +1,45 @@
 """A skeleton for a mesh that has none (``ncflow skeleton suggest``): a tree of joints inside the mesh,
 bones along its limbs, from the Reeb graph of its average geodesic distance.
 
+0. **The surface**: the largest connected piece; holes whose rims are short (a hand open at the wrist) closed
+   by fans (:func:`_capped`); edges longer than :data:`EDGE` of the diagonal split at their midpoints
+   (:func:`_even_edges`), so that a coarse or unevenly triangulated mesh has as many bands along a limb as a
+   fine one.
 1. **Average geodesic distance** (AGD): the mean of the heat-method geodesic distances
-   (:class:`potpourri3d.MeshHeatMethodDistanceSolver`) from :data:`N_SOURCES` farthest-point samples of the
-   surface. It is intrinsic (the same in any pose of the same body), smallest on the body's core and
-   largest at the tips of its limbs, and its level sets are rings around limbs and torso.
-2. **Reeb graph**: the faces are cut into bands of equal AGD (each band about :data:`BAND_EDGES` edge
-   steps of AGD wide, so a band is never thinner than the mesh), each band's connected pieces become nodes at
-   their area-weighted centroids (a ring's centroid lies on the limb's axis, inside), and pieces of
-   neighbouring bands that share an edge are joined; a minimum spanning tree of that graph (edge length:
-   the distance between centroids) makes it a tree even where the surface has handles.
+   (:class:`potpourri3d.MeshHeatMethodDistanceSolver`) from :data:`N_SOURCES` geodesic farthest-point
+   samples of the surface. It is intrinsic (the same in any pose of the same body), smallest on the body's
+   core and largest at the tips of its limbs, and its level sets are rings around limbs and torso.
+2. **Reeb graph**: the faces are cut into bands of equal AGD (each at least :data:`BAND` of the diagonal and
+   :data:`BAND_EDGES` edge steps of AGD wide, so a band is never thinner than the mesh), each band's pieces
+   (its faces joined through shared vertices) become nodes at their area-weighted centroids (a ring's
+   centroid lies on the limb's axis, inside), and pieces of neighbouring bands that share an edge are
+   joined; a minimum spanning tree of that graph (edge length: the distance between centroids) makes it a
+   tree even where the surface has handles.
 3. **Pruning**: a branch from a leaf to a node of three or more branches shorter than
-   :data:`PRUNE` of the bounding-box diagonal is removed (bumps, ears, clothing folds), again until none is.
+   :data:`PRUNE` of the diagonal (:func:`extent`) is removed (bumps, ears, clothing folds), again until none is.
 4. **Joints**: the root at the branch node of smallest AGD (the body's centre); every chain between
-   branch nodes and leaves is simplified (Douglas–Peucker at :data:`BEND` of the diagonal keeps its bends)
-   and cut into bones of at most :data:`MAX_BONE`; a chain ending in a leaf (a limb, a finger, a tail)
-   longer than :data:`LIMB` gets at least :data:`LIMB_BONES` bones; joints closer than :data:`MIN_BONE`
-   along a chain are merged.
-5. **Inside**: a joint the generalised winding number puts outside a closed mesh is moved to the middle
-   of the mesh's inside along the inward normal at its nearest surface point.
+   branch nodes and leaves is smoothed (:data:`SMOOTH`) and simplified (Douglas–Peucker at :data:`BEND` of
+   the diagonal keeps its bends) and cut into bones of at most :data:`MAX_BONE`; a chain ending in a leaf (a
+   limb, a finger, a tail) longer than :data:`LIMB` gets at least :data:`LIMB_BONES` bones; joints closer
+   than :data:`MIN_BONE` along a chain are merged. **Other poses** of the same body (a match's target, a
+   track's frames) show where a limb that is straight here articulates: where their alike limbs bend, at the
+   same AGD below the tip, this limb is cut too (:func:`_bends_seen`), and then only by length where bones
+   are still too long.
+5. **Inside**: a limb's tip that the generalised winding number puts outside a closed mesh is moved back
+   along its bone to just inside; any other joint outside to the middle of the mesh's inside along the
+   inward normal at its nearest surface point.
 
 Written by hand: the curve-skeleton libraries (mesh contraction in skeletor, CGAL's mean-curvature
 skeleton) are GPL or C++, and give dense curves, not a joint tree; learned riggers need a GPU. Limits:
-joints are placed by length and bends in this one pose, not where the body articulates (a straight arm
-gets its elbow at a third of its length); a mesh with no limbs (a sphere) gets a short chain.
+without another pose, joints are placed by length and bends in this one pose, not where the body
+articulates (a straight arm gets its elbow at a third of its length); a palm or a chest is a cascade of
+branch nodes, not one bone per finger from the wrist; a mesh with no limbs (a sphere) gets a short chain.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 
 import numpy as np
 import scipy.sparse as sp
@@ -39,21 +50,38 @@ from ncflow.errors import InputError
 from ncflow.geometry.closest import closest_points_on_surface
 from ncflow.geometry.mesh import face_areas
 from ncflow.geometry.skeleton import Skeleton
-from ncflow.geometry.topology import mesh_topology, vertex_components
+from ncflow.geometry.topology import close_boundary, mesh_topology, vertex_components
 from ncflow.geometry.winding import signed_volume, winding_numbers
 
-N_SOURCES = 12
-"""Farthest-point samples whose geodesic distances are averaged (the AGD)."""
+N_SOURCES = 24
+"""Geodesic farthest-point samples whose geodesic distances are averaged (the AGD)."""
 BAND_EDGES = 3.0
-"""Width of an AGD band in mean AGD steps along an edge."""
+"""Least width of an AGD band in mean AGD steps along an edge ..."""
+BAND = 0.025
+"""... and in AGD as a share of the diagonal (the AGD grows about as the distance along a limb)."""
+HUB = 1.4
+"""Branch nodes joined by a chain shorter than this many times the wider end's radius are merged
+(:func:`merge_hubs`): a palm's chains measure 0.6–1.25 radii, a torso's 1.6–1.9 on the development set."""
 PRUNE = 0.08
-"""Leaf branches shorter than this share of the bounding-box diagonal are removed."""
+"""Leaf branches shorter than this share of the diagonal (:func:`extent`) are removed."""
 BEND = 0.03
 """Douglas–Peucker tolerance along a chain (share of the diagonal): bends deeper than this keep a joint."""
 MAX_BONE = 0.12
 """Longest bone (share of the diagonal)."""
 MIN_BONE = 0.04
 """Joints closer than this along a chain (share of the diagonal) are merged."""
+EDGE = 0.012
+"""Longest edge (share of the diagonal) of the mesh the AGD is computed on; longer edges are split."""
+MAX_FACES = 60_000
+"""... unless splitting them would make more faces than this."""
+CAP = 1.5
+"""Holes whose rims are together shorter than this many diagonals are capped first."""
+MATCH_LEVEL = 0.08
+"""Limbs of the two poses whose tips' AGD (over the mean AGD) differ by less than this are alike."""
+ALIKE = 1.5
+"""Limbs from one node whose lengths are within this ratio get joints at the same shares of their length."""
+SMOOTH = 3
+"""Passes of a (1/4, 1/2, 1/4) smoothing of a chain's band centroids before its joints are chosen."""
 LIMB = 0.15
 """A chain ending in a leaf at least this long (share of the diagonal) is a limb ..."""
 LIMB_BONES = 3
@@ -70,6 +98,7 @@ class SuggestedSkeleton:
         n_nodes: nodes of the Reeb graph before pruning.
         n_leaves: leaves of the skeleton (limb tips).
         moved_inside: joints moved inside the mesh (step 5).
+        bends_seen: chain points cut because the other pose bends its limb there (0 without one).
     """
 
     skeleton: Skeleton
@@ -77,6 +106,17 @@ class SuggestedSkeleton:
     n_nodes: int
     n_leaves: int
     moved_inside: int
+    bends_seen: int = 0
+
+
+def extent(vertices: Float[np.ndarray, "V 3"]) -> float:
+    """The diagonal of the points' box along their principal axes: the mesh's size, the same in any
+    placement (every length below is a share of it).
+    """
+    v = np.asarray(vertices, np.float64)
+    centred = v - v.mean(0)
+    _, _, vt = np.linalg.svd(centred, full_matrices=False)
+    return float(np.linalg.norm(np.ptp(centred @ vt.T, axis=0)))
 
 
 def average_geodesic_distance(
@@ -90,38 +130,50 @@ def average_geodesic_distance(
     v = np.asarray(vertices, np.float64)
     solver = pp3d.MeshHeatMethodDistanceSolver(v, np.asarray(faces, np.int64))
     first = int(np.argmax(np.linalg.norm(v - v.mean(0), axis=1)))
-    sources, nearest = [first], np.linalg.norm(v - v[first], axis=1)
+    fields = [solver.compute_distance(first)]
+    nearest = fields[0].copy()
     for _ in range(min(n_sources, v.shape[0]) - 1):
-        sources.append(int(np.argmax(nearest)))
-        nearest = np.minimum(nearest, np.linalg.norm(v - v[sources[-1]], axis=1))
-    return np.mean([solver.compute_distance(i) for i in sources], axis=0)
+        fields.append(solver.compute_distance(int(np.argmax(nearest))))
+        nearest = np.minimum(nearest, fields[-1])
+    return np.mean(fields, axis=0)
 
 
 def reeb_tree(
     vertices: Float[np.ndarray, "V 3"], faces: Int[np.ndarray, "F 3"], f: Float[np.ndarray, " V"]
-) -> tuple[Float[np.ndarray, "N 3"], Float[np.ndarray, " N"], list[set[int]]]:
-    """The Reeb graph of ``f`` on bands of :data:`BAND_EDGES` edge steps, as a spanning tree: node centroids
-    (N, 3), node values of ``f`` (N,) and the adjacency (one set of neighbours per node).
+) -> tuple[Float[np.ndarray, "N 3"], Float[np.ndarray, " N"], Float[np.ndarray, " N"], list[set[int]]]:
+    """The Reeb graph of ``f`` on bands (module docstring, step 2), as a spanning tree: node centroids (N, 3),
+    node values of ``f`` (N,), node radii (N,: the pieces' area-weighted mean distance from their centroid,
+    about a limb's radius for a ring) and the adjacency (one set of neighbours per node).
     """
     v, fc = np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
     topo = mesh_topology(fc, v.shape[0])
     lo, hi = float(f.min()), float(f.max())
     step = float(np.mean(np.abs(f[topo.edges[:, 0]] - f[topo.edges[:, 1]])))
-    n_bands = max(4, int((hi - lo) / max(BAND_EDGES * step, 1e-30)))
+    diag = extent(v)
+    n_bands = max(4, int((hi - lo) / max(BAND_EDGES * step, BAND * diag, 1e-30)))
     face_f = f[fc].mean(1)
     band = np.minimum(((face_f - lo) / max(hi - lo, 1e-30) * n_bands).astype(np.int64), n_bands - 1)
     nf = fc.shape[0]
     pairs = np.concatenate([topo.edge_faces[:, [k, k + 1]] for k in range(3)])  # faces sharing an edge
     pairs = pairs[np.all(pairs >= 0, axis=1)]
     fa, fb = pairs[:, 0], pairs[:, 1]
-    inside_band = band[fa] == band[fb]
-    links = sp.coo_matrix((np.ones(inside_band.sum()), (fa[inside_band], fb[inside_band])), shape=(nf, nf))
-    n, label = connected_components(links, directed=False)
+    # a band's pieces: its faces joined through the vertices they share (a ring whose faces touch only at
+    # corners, as on coarse or uneven triangulations, stays one piece)
+    corner = (fc * n_bands + band[:, None]).ravel()
+    keys, key_of = np.unique(corner, return_inverse=True)
+    links = sp.coo_matrix(
+        (np.ones(corner.size), (np.repeat(np.arange(nf), 3), nf + key_of)), shape=(nf + keys.size, nf + keys.size)
+    )
+    _, label = connected_components(links, directed=False)
+    _, label = np.unique(label[:nf], return_inverse=True)
+    n = int(label.max()) + 1
     area = face_areas(v, fc) + 1e-30
     weight = np.bincount(label, weights=area, minlength=n)
     centroids = np.stack([np.bincount(label, weights=area * c, minlength=n) for c in v[fc].mean(1).T], 1)
     centroids /= weight[:, None]
     values = np.bincount(label, weights=area * face_f, minlength=n) / weight
+    spread = np.linalg.norm(v[fc].mean(1) - centroids[label], axis=1)
+    radii = np.bincount(label, weights=area * spread, minlength=n) / weight
     joined = np.unique(np.sort(np.stack([label[fa], label[fb]], axis=1), axis=1), axis=0)
     a, b = joined[joined[:, 0] != joined[:, 1]].T  # each pair of neighbouring pieces once
     length = np.linalg.norm(centroids[a] - centroids[b], axis=1) + 1e-12
@@ -131,7 +183,7 @@ def reeb_tree(
     for i, j in zip(tree.row.tolist(), tree.col.tolist(), strict=True):
         adjacency[i].add(j)
         adjacency[j].add(i)
-    return centroids, values, adjacency
+    return centroids, values, radii, adjacency
 
 
 def _arc(points: np.ndarray) -> np.ndarray:
@@ -166,6 +218,56 @@ def prune_branches(adjacency: list[set[int]], centroids: np.ndarray, shortest: f
             for other in adj[node]:
                 adj[other].discard(node)
             adj[node] = set()
+
+
+def merge_hubs(
+    adjacency: list[set[int]], centroids: np.ndarray, values: np.ndarray, radii: np.ndarray, ratio: float
+) -> tuple[np.ndarray, list[set[int]]]:
+    """Branch nodes joined by a chain shorter than ``ratio`` times the larger radius of its two ends made one
+    (shortest chain first): the pieces of one wide part of the body — a palm whose fingers leave it one
+    after another, a chest whose arms and neck leave it at slightly different heights — become one joint
+    from which the limbs hang, as in a drawn skeleton (and as the pose search needs to try alike limbs
+    exchanged), while a torso, longer than it is wide, keeps its two ends. The merged node keeps the one of
+    smaller ``values``, the larger radius, and sits at the mean of the merged nodes' centroids. Returns the
+    centroids (a copy) and the adjacency.
+    """
+    adj = [set(n) for n in adjacency]
+    pos = np.array(centroids, np.float64)
+    radius = np.array(radii, np.float64)
+    members = {n: [n] for n in range(len(adj))}
+    while True:
+        best = None
+        for u in range(len(adj)):
+            if len(adj[u]) < 3:
+                continue
+            for first in adj[u]:
+                chain, prev, cur = [u, first], u, first
+                while len(adj[cur]) == 2:
+                    (cur, prev) = ([x for x in adj[cur] if x != prev][0], cur)
+                    chain.append(cur)
+                if len(adj[cur]) < 3 or cur == u:
+                    continue
+                length = float(_arc(pos[chain])[-1])
+                if length < ratio * max(radius[u], radius[cur]) and (best is None or length < best[0]):
+                    best = (length, chain)
+        if best is None:
+            return pos, adj
+        chain = best[1]
+        keep, gone = sorted((chain[0], chain[-1]), key=lambda n: values[n])
+        for node in chain[1:-1]:
+            for other in adj[node]:
+                adj[other].discard(node)
+            adj[node] = set()
+        adj[keep].discard(gone)
+        adj[gone].discard(keep)
+        for other in adj[gone]:
+            adj[other].discard(gone)
+            adj[other].add(keep)
+            adj[keep].add(other)
+        adj[gone] = set()
+        members[keep] += members.pop(gone)
+        radius[keep] = max(radius[keep], radius[gone])
+        pos[keep] = np.mean(np.asarray(centroids)[members[keep]], axis=0)
 
 
 def _douglas_peucker(points: np.ndarray, tolerance: float) -> list[int]:
@@ -208,16 +310,41 @@ def _chains(adjacency: list[set[int]], root: int) -> list[list[int]]:
     return out
 
 
-def _chain_joints(points: np.ndarray, to_leaf: bool, diag: float) -> list[int]:
-    """Indices along a chain's points (0 = its start, already a joint) that become joints."""
+def _smoothed(points: np.ndarray) -> np.ndarray:
+    """A chain's points smoothed by :data:`SMOOTH` passes of (1/4, 1/2, 1/4), its ends fixed: band pieces
+    that zigzag across a limb do not become bends.
+    """
+    p = points.copy()
+    for _ in range(SMOOTH):
+        p[1:-1] = 0.25 * p[:-2] + 0.5 * p[1:-1] + 0.25 * p[2:]
+    return p
+
+
+def _chain_joints(points: np.ndarray, to_leaf: bool, diag: float, bends: tuple[int, ...] = ()) -> list[int]:
+    """Indices along a chain's points (0 = its start, already a joint) that become joints. ``bends``: points
+    where the other pose bends this limb (:func:`_bends_seen`); with them, the chain is cut there and at its
+    own bends, and only bones longer than :data:`MAX_BONE` (and a limb of fewer than :data:`LIMB_BONES`
+    bones, at its longest bone) are split further; without them, also at equal lengths.
+    """
     arc = _arc(points)
-    keep = set(_douglas_peucker(points, BEND * diag))
-    n_bones = max(1, int(np.ceil(arc[-1] / (MAX_BONE * diag))))
-    if to_leaf and arc[-1] >= LIMB * diag:
-        n_bones = max(n_bones, LIMB_BONES)
-    keep.update(int(np.argmin(np.abs(arc - arc[-1] * k / n_bones))) for k in range(1, n_bones))
-    picked = [0]
     last = points.shape[0] - 1
+    keep = set(_douglas_peucker(points, BEND * diag))
+    if bends:
+        keep.update(k for k in bends if MIN_BONE * diag <= arc[k] <= arc[-1] - MIN_BONE * diag)
+        limb = to_leaf and arc[-1] >= LIMB * diag
+        while True:
+            cuts = sorted(keep)
+            spans = [(arc[b] - arc[a], a, b) for a, b in zip(cuts[:-1], cuts[1:], strict=True)]
+            length, a, b = max(spans)
+            if not (length > MAX_BONE * diag or (limb and len(spans) < LIMB_BONES)) or b - a < 2:
+                break
+            keep.add(int(a + np.argmin(np.abs(arc[a + 1 : b] - 0.5 * (arc[a] + arc[b])))) + 1)
+    else:
+        n_bones = max(1, int(np.ceil(arc[-1] / (MAX_BONE * diag))))
+        if to_leaf and arc[-1] >= LIMB * diag:
+            n_bones = max(n_bones, LIMB_BONES)
+        keep.update(int(np.argmin(np.abs(arc - arc[-1] * k / n_bones))) for k in range(1, n_bones))
+    picked = [0]
     for k in sorted(keep - {0}):
         if k == last or arc[k] - arc[picked[-1]] >= MIN_BONE * diag:
             if k == last and len(picked) > 1 and arc[k] - arc[picked[-1]] < MIN_BONE * diag:
@@ -226,22 +353,152 @@ def _chain_joints(points: np.ndarray, to_leaf: bool, diag: float) -> list[int]:
     return picked[1:]
 
 
-def _move_inside(joints: np.ndarray, vertices: np.ndarray, faces: np.ndarray, diag: float) -> tuple[np.ndarray, int]:
-    """Joints outside the closed mesh moved to the middle of its inside along the inward normal at their
-    nearest surface point (left where the ray finds no inside: an open or very thin mesh).
+def _limb_joints(points: np.ndarray, diag: float, bends: tuple[int, ...] = ()) -> list[int]:
+    """:func:`_chain_joints` of a limb that leaves the body at a branch node, with a joint at its base: the
+    first point at least half :data:`MIN_BONE` from the branch (the limb's first band: the shoulder, the
+    hip, a finger's knuckle), so that the limb turns where it leaves the body and the bone from the branch
+    node to the base (a clavicle, a pelvis bone, a metacarpal) goes with the body."""
+    arc = _arc(points)
+    far = np.flatnonzero(arc >= 0.5 * MIN_BONE * diag)
+    base = int(far[0]) if far.size else points.shape[0] - 1
+    if base >= points.shape[0] - 2 or arc[-1] - arc[base] < MIN_BONE * diag:
+        return _chain_joints(points, True, diag, bends)
+    rest = _chain_joints(points[base:], True, diag, tuple(k - base for k in bends if k > base))
+    return [base] + [base + k for k in rest]
+
+
+def _alike_limbs_alike(tree: "_Tree", picks: list[list[int]]) -> list[list[int]]:
+    """Limbs that hang from the same node and are alike in length (within :data:`ALIKE`: left and right
+    legs, fingers) cut at the same shares of their length as the one of them with the most joints: a
+    drawn skeleton gives alike limbs alike joints, and the pose search tries exchanging only limbs of one
+    shape."""
+    out = [list(p) for p in picks]
+    arcs = [_arc(tree.centroids[c]) for c in tree.chains]
+    limbs = [c for c, chain in enumerate(tree.chains) if len(tree.adj[chain[-1]]) == 1]
+    for start in {tree.chains[c][0] for c in limbs}:
+        group = sorted((c for c in limbs if tree.chains[c][0] == start), key=lambda c: -len(picks[c]))
+        for c in group:
+            ref = next(r for r in group if arcs[r][-1] <= ALIKE * arcs[c][-1] and arcs[c][-1] <= ALIKE * arcs[r][-1])
+            if ref == c or len(picks[ref]) == len(picks[c]):
+                continue
+            share = arcs[c] / max(arcs[c][-1], 1e-30)
+            cuts = [int(np.argmin(np.abs(share - arcs[ref][k] / arcs[ref][-1]))) for k in picks[ref][:-1]]
+            for i in range(len(cuts)):  # one point each, in order (a short chain has few points)
+                cuts[i] = max(cuts[i], cuts[i - 1] + 1 if i else 1)
+            if not cuts or cuts[-1] < len(share) - 1:
+                out[c] = [*cuts, len(share) - 1]
+    return out
+
+
+@dataclasses.dataclass(frozen=True)
+class _Tree:
+    """A mesh's pruned Reeb tree: node centroids, node AGD (divided by the surface's mean AGD, so that two
+    poses of one body in any units compare), neighbours, root, the chains from the root, and the mesh.
+    """
+
+    centroids: np.ndarray
+    level: np.ndarray
+    adj: list[set[int]]
+    root: int
+    chains: list[list[int]]
+    agd: np.ndarray
+    diag: float
+    shape: tuple[np.ndarray, np.ndarray]
+    n_given: int
+
+    def limbs(self) -> list[list[int]]:
+        return [c for c in self.chains if len(self.adj[c[-1]]) == 1]
+
+
+def _tree(vertices: np.ndarray, faces: np.ndarray) -> _Tree:
+    """Steps 1–3 and the root (module docstring) on the largest piece, capped and with edges split."""
+    v, fc = _largest_piece(np.asarray(vertices, np.float64), np.asarray(faces, np.int64))
+    if fc.shape[0] < 20:
+        raise InputError(f"the mesh has {fc.shape[0]} faces: too few to suggest a skeleton")
+    diag = extent(v)
+    n_given = v.shape[0]
+    v, fc = _capped(v, fc, diag)
+    shape = (v, fc)
+    v, fc = _even_edges(v, fc, EDGE * diag)
+    agd = average_geodesic_distance(v, fc)
+    centroids, values, radii, adjacency = reeb_tree(v, fc, agd)
+    adj = prune_branches(adjacency, centroids, PRUNE * diag)
+    centroids, adj = merge_hubs(adj, centroids, values, radii, HUB)
+    alive = [n for n, s in enumerate(adj) if s]
+    if not alive:
+        raise InputError("the mesh has no extent along which to place bones (its geodesic distances are flat)")
+    branch = [n for n in alive if len(adj[n]) > 2]
+    root = min(branch or alive, key=lambda n: values[n])
+    area = np.bincount(fc.ravel(), weights=np.repeat(face_areas(v, fc), 3), minlength=v.shape[0])
+    level = values / max(float(np.sum(area * agd) / max(area.sum(), 1e-30)), 1e-30)
+    return _Tree(centroids, level, adj, root, _chains(adj, root), agd, diag, shape, n_given)
+
+
+def _bends_seen(tree: _Tree, other: _Tree) -> dict[int, tuple[int, ...]]:
+    """For each limb of ``tree`` (the chain's index), the chain points nearest in AGD to where the limbs of
+    ``other`` (the same body in another pose) that end at about the same AGD bend (their Douglas–Peucker
+    joints at :data:`BEND`), matched by their AGD below the limb's tip. The AGD is intrinsic, and along a
+    limb away from the body it grows as the distance along the limb: a bend seen in the other pose (an
+    elbow bent there, straight here) at some AGD below its tip marks the same place on this limb, whatever
+    the bend did to the AGD elsewhere; limbs alike (left and right, fingers) share their bends, as their
+    joints are alike.
+    """
+    seen = []
+    for chain in other.limbs():
+        pts = _smoothed(other.centroids[chain])
+        inner = _douglas_peucker(pts, BEND * other.diag)[1:-1]
+        tip = float(other.level[chain[-1]])
+        seen.append((tip, [tip - float(other.level[chain[k]]) for k in inner]))
+    out = {}
+    for c, chain in enumerate(tree.chains):
+        if len(tree.adj[chain[-1]]) != 1 or len(chain) < 3:
+            continue
+        depth = tree.level[chain[-1]] - tree.level[chain]  # AGD below the tip: about the distance along the limb
+        found = set()
+        for tip, bends in seen:
+            if abs(tip - tree.level[chain[-1]]) > MATCH_LEVEL:
+                continue
+            for b in bends:
+                if 0.0 < b < depth[0]:
+                    found.add(int(np.argmin(np.abs(depth - b))))
+        if found:
+            out[c] = tuple(sorted(found))
+    return out
+
+
+def _move_inside(
+    joints: np.ndarray, parents: np.ndarray, vertices: np.ndarray, faces: np.ndarray, diag: float
+) -> tuple[np.ndarray, int]:
+    """Joints outside the closed mesh moved inside: a limb's tip (a leaf, whose last band is a cap at the
+    surface) back along its bone to just past where the bone enters the mesh; any other joint to the middle
+    of the mesh's inside along the inward normal at its nearest surface point (a torus's ring centroids lie
+    in its hole). Left where no inside is found (an open or very thin mesh).
     """
     tri = vertices[faces]
     outside = np.flatnonzero(np.abs(winding_numbers(joints, tri)) < 0.5)
     if outside.size == 0:
         return joints, 0
     out = joints.copy()
+    is_leaf = np.bincount(parents[parents >= 0], minlength=joints.shape[0]) == 0
+    is_leaf[0] = False
+    along = np.linspace(0.0, 1.0, 41)[1:]
+    moved_back = set()
+    for j in outside[is_leaf[outside]]:
+        probes = joints[j] + along[:, None] * (joints[parents[j]] - joints[j])
+        inside = np.abs(winding_numbers(probes, tri)) >= 0.5
+        if inside.any():
+            out[j] = probes[min(int(np.argmax(inside)) + 1, along.size - 1)]
+            moved_back.add(int(j))
+    outside = np.asarray([j for j in outside if int(j) not in moved_back], np.int64)
+    moved = len(moved_back)
+    if outside.size == 0:
+        return out, moved
     _, face_index, bary = closest_points_on_surface(joints[outside], vertices, faces)
     near = np.einsum("nk,nkd->nd", bary, tri[face_index])
     normals = np.cross(tri[face_index, 1] - tri[face_index, 0], tri[face_index, 2] - tri[face_index, 0])
     normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
     sign = 1.0 if signed_volume(vertices, faces) >= 0 else -1.0  # outward normals: inward is −n
     steps = np.linspace(0.0, 0.3 * diag, 61)[1:]
-    moved = 0
     for k, j in enumerate(outside):
         probes = near[k] - sign * normals[k] * steps[:, None]
         inside = np.abs(winding_numbers(probes, tri)) >= 0.5
@@ -251,6 +508,41 @@ def _move_inside(joints: np.ndarray, vertices: np.ndarray, faces: np.ndarray, di
             out[j] = 0.5 * (probes[first] + probes[last])
             moved += 1
     return out, moved
+
+
+def _capped(v: np.ndarray, fc: np.ndarray, diag: float) -> tuple[np.ndarray, np.ndarray]:
+    """The mesh with its holes closed by fans (:func:`~ncflow.geometry.topology.close_boundary`) when their
+    rims are together shorter than :data:`CAP` diagonals: a hand open at the wrist or a limb cut at the
+    scanner's edge ends in one tip instead of one per corner of its rim. A longer rim (a single view's
+    silhouette) is left open.
+    """
+    topo = mesh_topology(fc, v.shape[0])
+    if not topo.has_boundary:
+        return v, fc
+    rim = topo.edges[topo.boundary_edges]
+    if float(np.linalg.norm(v[rim[:, 0]] - v[rim[:, 1]], axis=1).sum()) > CAP * diag:
+        return v, fc
+    return close_boundary(v, fc)
+
+
+def _even_edges(v: np.ndarray, fc: np.ndarray, longest: float) -> tuple[np.ndarray, np.ndarray]:
+    """The mesh with every edge longer than ``longest`` split at shared midpoints (trimesh's
+    ``subdivide_to_size``: the shape is unchanged, no cracks, the given vertices keep their indices and come
+    first), so that a coarse or unevenly triangulated mesh has as many AGD bands along a limb as a fine one.
+    The length is raised where splitting to it would make far more than :data:`MAX_FACES` faces.
+    """
+    import trimesh.remesh
+
+    edges = np.linalg.norm(v[fc] - v[np.roll(fc, 1, axis=1)], axis=2)
+    area = float(face_areas(v, fc).sum())
+    longest = max(longest, float(np.sqrt(area / (0.433 * MAX_FACES))))
+    if edges.max() <= longest:
+        return v, fc
+    try:
+        out_v, out_f = trimesh.remesh.subdivide_to_size(v, fc, longest, max_iter=16)
+    except ValueError:  # slivers that halving cannot bring below the length
+        return v, fc
+    return np.asarray(out_v, np.float64), np.asarray(out_f, np.int64)
 
 
 def _largest_piece(v: np.ndarray, fc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -266,7 +558,11 @@ def _largest_piece(v: np.ndarray, fc: np.ndarray) -> tuple[np.ndarray, np.ndarra
 
 
 def suggest_skeleton(
-    vertices: Float[np.ndarray, "V 3"], faces: Int[np.ndarray, "F 3"], *, name: str | None = None
+    vertices: Float[np.ndarray, "V 3"],
+    faces: Int[np.ndarray, "F 3"],
+    *,
+    name: str | None = None,
+    other_poses: Sequence[tuple[Float[np.ndarray, "W 3"], Int[np.ndarray, "G 3"]]] = (),
 ) -> SuggestedSkeleton:
     """A joint tree for a character mesh (module docstring); deterministic.
 
@@ -275,35 +571,42 @@ def suggest_skeleton(
             connected pieces the largest by area carries the skeleton.
         faces: (F, 3) triangles.
         name: the skeleton's name.
+        other_poses: the same body in other poses (a match's target, a sequence's frames: vertices, faces,
+            each its own triangulation), whose bent limbs show where this mesh's straight ones articulate
+            (:func:`_bends_seen`).
 
     Raises:
         InputError: a mesh too small to have a shape (fewer than 20 faces).
     """
-    v, fc = _largest_piece(np.asarray(vertices, np.float64), np.asarray(faces, np.int64))
-    if fc.shape[0] < 20:
-        raise InputError(f"the mesh has {fc.shape[0]} faces: too few to suggest a skeleton")
-    diag = float(np.linalg.norm(np.ptp(v, axis=0)))
-    agd = average_geodesic_distance(v, fc)
-    centroids, values, adjacency = reeb_tree(v, fc, agd)
-    adj = prune_branches(adjacency, centroids, PRUNE * diag)
-    alive = [n for n, s in enumerate(adj) if s]
-    if not alive:
-        raise InputError("the mesh has no extent along which to place bones (its geodesic distances are flat)")
-    branch = [n for n in alive if len(adj[n]) > 2]
-    root = min(branch or alive, key=lambda n: values[n])
-    joints, parents, index = [centroids[root]], [-1], {root: 0}
-    for chain in _chains(adj, root):
+    tree = _tree(vertices, faces)
+    bends: dict[int, tuple[int, ...]] = {}
+    for other in other_poses:
+        for c, seen in _bends_seen(tree, _tree(*other)).items():
+            bends[c] = tuple(sorted(set(bends.get(c, ())) | set(seen)))
+    diag = tree.diag
+    picks = []
+    for c, chain in enumerate(tree.chains):
+        to_leaf = len(tree.adj[chain[-1]]) == 1
+        points = _smoothed(tree.centroids[chain])
+        if to_leaf and len(tree.adj[chain[0]]) > 2:
+            picks.append(_limb_joints(points, diag, bends.get(c, ())))
+        else:
+            picks.append(_chain_joints(points, to_leaf, diag, bends.get(c, ())))
+    picks = _alike_limbs_alike(tree, picks)
+    joints, parents, index = [tree.centroids[tree.root]], [-1], {tree.root: 0}
+    for chain, picked in zip(tree.chains, picks, strict=True):
         parent = index[chain[0]]
-        to_leaf = len(adj[chain[-1]]) == 1
-        for k in _chain_joints(centroids[chain], to_leaf, diag):
+        for k in picked:
             node = chain[k]
             if node not in index:
-                joints.append(centroids[node])
+                joints.append(tree.centroids[node])
                 parents.append(parent)
                 index[node] = len(joints) - 1
             parent = index[node]
-    positions, moved = _move_inside(np.asarray(joints), v, fc, diag)
+    positions, moved = _move_inside(np.asarray(joints), np.asarray(parents), *tree.shape, diag)
     names = ["root"] + [f"j{k}" for k in range(1, len(joints))]
     skeleton = Skeleton.from_arrays(positions, np.asarray(parents), names, name=name)
     n_leaves = int(np.sum(np.bincount(np.asarray(parents[1:]), minlength=len(joints)) == 0))
-    return SuggestedSkeleton(skeleton, agd, len(centroids), n_leaves, moved)
+    return SuggestedSkeleton(
+        skeleton, tree.agd[: tree.n_given], len(tree.centroids), n_leaves, moved, sum(map(len, bends.values()))
+    )

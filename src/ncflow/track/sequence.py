@@ -338,13 +338,28 @@ def _resumed(out: Path, path: Path, sha: str, previous, src: Mesh, skel: Skeleto
     return rec, _hand_on(state, pl, run.normalization, frame, reg, stem)
 
 
-def _inputs(source, skeleton, config, message) -> tuple[Mesh, Skeleton, bool, object]:
-    """The source, its skeleton (suggested when None), whether it was suggested, and the normalisation."""
+SUGGEST_FRAMES = 3
+"""Frames (first, middle, last) whose poses show the suggested skeleton where the source's limbs bend."""
+
+
+def _inputs(source, skeleton, config, message, paths) -> tuple[Mesh, Skeleton, bool, object]:
+    """The source, its skeleton (suggested when None, with up to :data:`SUGGEST_FRAMES` mesh frames as other
+    poses; a frame that cannot be read or is a point cloud is left out), whether it was suggested, and the
+    normalisation.
+    """
     src, skel = load_source(source, skeleton)
     clean, _, _ = intake(src, "source", config)
     suggested = skel is None
     if suggested:
-        skel, _ = suggested_skeleton(clean, message)
+        others = []
+        for k in sorted({0, (len(paths) - 1) // 2, len(paths) - 1})[:SUGGEST_FRAMES]:
+            try:
+                frame = load_target(paths[k])
+                if isinstance(frame, Mesh):
+                    others.append(intake(frame, "frame", config)[0])
+            except NcflowError:
+                continue
+        skel, _ = suggested_skeleton(clean, message, others)
     return src, skel, suggested, fit_normalization(clean.vertices, clean.faces)
 
 
@@ -398,7 +413,7 @@ def track_sequence(
     cfg = validate_config(config or preset("fast"))
     message = _message(quiet, stream)
     paths = frame_files(frames)
-    src, skel, suggested, norm = _inputs(source, skeleton, cfg, message)
+    src, skel, suggested, norm = _inputs(source, skeleton, cfg, message, paths)
     options = {"warm_steps": warm_steps, "lost_ratio": lost_ratio, "fps": fps}
     out, resumable = _open_folder(out_dir, _manifest(source, skeleton, cfg, options), overwrite)
     if suggested:
