@@ -58,6 +58,24 @@ def test_generated_characters(kind, seed):
         assert nearest < TIP_BOUND * diag, (ch.skeleton.names[tip], nearest / diag)
 
 
+def test_large_mesh_is_decimated_first():
+    """A 40k-vertex humanoid (the generated one subdivided twice; decimated to MAX_VERTICES inside): a leaf
+    near every true limb tip, every joint inside, and the AGD given for every vertex."""
+    from ncflow.skeleton.suggest import MAX_VERTICES
+
+    ch = make_character("humanoid", 0)
+    v, f = trimesh.remesh.subdivide(*trimesh.remesh.subdivide(ch.mesh.vertices, ch.mesh.faces))
+    assert v.shape[0] > 3 * MAX_VERTICES
+    found = suggest_skeleton(v, f)
+    sk = found.skeleton
+    assert found.agd.shape == (v.shape[0],) and np.all(np.isfinite(found.agd))
+    assert np.all(np.abs(winding_numbers(sk.positions, v[f])) > 0.5)
+    leaves = sk.positions[_leaves(np.asarray(sk.parents))]
+    diag = np.linalg.norm(np.ptp(v, axis=0))
+    for tip in _leaves(np.asarray(ch.skeleton.parents)):
+        assert np.linalg.norm(leaves - ch.skeleton.positions[tip], axis=1).min() < TIP_BOUND * diag
+
+
 def test_placement_free_and_deterministic():
     """Rotated, moved and scaled mesh: the same joints, rotated, moved and scaled (the AGD is intrinsic)."""
     ch = make_character("humanoid", 0)

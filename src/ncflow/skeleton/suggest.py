@@ -72,6 +72,8 @@ MIN_BONE = 0.04
 """Joints closer than this along a chain (share of the diagonal) are merged."""
 EDGE = 0.012
 """Longest edge (share of the diagonal) of the mesh the AGD is computed on; longer edges are split."""
+MAX_VERTICES = 12_000
+"""A larger mesh is decimated to about this many vertices first (quadric decimation, vertices kept)."""
 MAX_FACES = 60_000
 """... unless splitting them would make more faces than this."""
 CAP = 1.5
@@ -416,6 +418,12 @@ def _tree(vertices: np.ndarray, faces: np.ndarray) -> _Tree:
     if fc.shape[0] < 20:
         raise InputError(f"the mesh has {fc.shape[0]} faces: too few to suggest a skeleton")
     diag = extent(v)
+    given = v
+    if v.shape[0] > MAX_VERTICES:  # the skeleton needs the shape, not its detail
+        from ncflow.geometry.decimate import decimate
+
+        small = decimate(v, fc, MAX_VERTICES)
+        v, fc = small.vertices, small.faces
     n_given = v.shape[0]
     v, fc = _capped(v, fc, diag)
     shape = (v, fc)
@@ -431,6 +439,11 @@ def _tree(vertices: np.ndarray, faces: np.ndarray) -> _Tree:
     root = min(branch or alive, key=lambda n: values[n])
     area = np.bincount(fc.ravel(), weights=np.repeat(face_areas(v, fc), 3), minlength=v.shape[0])
     level = values / max(float(np.sum(area * agd) / max(area.sum(), 1e-30)), 1e-30)
+    if given.shape[0] != n_given:
+        from scipy.spatial import cKDTree
+
+        agd = agd[cKDTree(v[:n_given]).query(given)[1]]
+        n_given = given.shape[0]
     return _Tree(centroids, level, adj, root, _chains(adj, root), agd, diag, shape, n_given)
 
 
