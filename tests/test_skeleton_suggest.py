@@ -12,8 +12,8 @@ from scipy.spatial.transform import Rotation
 from ncflow.cli import main
 from ncflow.geometry.winding import winding_numbers
 from ncflow.io.meshes import load_mesh, save_mesh
-from ncflow.skeleton import load_skeleton
 from ncflow.matcher.pose_hypotheses import exchangeable_limbs
+from ncflow.skeleton import load_skeleton
 from ncflow.skeleton.suggest import MAX_BONE, _chain_joints, extent, merge_hubs, prune_branches, suggest_skeleton
 from ncflow.synthetic.characters import make_character, pose_character
 

@@ -359,7 +359,8 @@ def _limb_joints(points: np.ndarray, diag: float, bends: tuple[int, ...] = ()) -
     """:func:`_chain_joints` of a limb that leaves the body at a branch node, with a joint at its base: the
     first point at least half :data:`MIN_BONE` from the branch (the limb's first band: the shoulder, the
     hip, a finger's knuckle), so that the limb turns where it leaves the body and the bone from the branch
-    node to the base (a clavicle, a pelvis bone, a metacarpal) goes with the body."""
+    node to the base (a clavicle, a pelvis bone, a metacarpal) goes with the body.
+    """
     arc = _arc(points)
     far = np.flatnonzero(arc >= 0.5 * MIN_BONE * diag)
     base = int(far[0]) if far.size else points.shape[0] - 1
@@ -369,11 +370,12 @@ def _limb_joints(points: np.ndarray, diag: float, bends: tuple[int, ...] = ()) -
     return [base] + [base + k for k in rest]
 
 
-def _alike_limbs_alike(tree: "_Tree", picks: list[list[int]]) -> list[list[int]]:
+def _alike_limbs_alike(tree: _Tree, picks: list[list[int]]) -> list[list[int]]:
     """Limbs that hang from the same node and are alike in length (within :data:`ALIKE`: left and right
     legs, fingers) cut at the same shares of their length as the one of them with the most joints: a
     drawn skeleton gives alike limbs alike joints, and the pose search tries exchanging only limbs of one
-    shape."""
+    shape.
+    """
     out = [list(p) for p in picks]
     arcs = [_arc(tree.centroids[c]) for c in tree.chains]
     limbs = [c for c, chain in enumerate(tree.chains) if len(tree.adj[chain[-1]]) == 1]
