@@ -17,7 +17,7 @@ bones along its limbs, from the Reeb graph of its average geodesic distance.
    tree even where the surface has handles.
 3. **Pruning**: a branch from a leaf to a node of three or more branches shorter than
    :data:`PRUNE` of the diagonal (:func:`extent`) is removed (bumps, ears, clothing folds), again until none is.
-4. **Joints**: the root at the branch node of smallest AGD (the body's centre); every chain between
+4. **Joints**: the root at the tree's centre among its branch nodes (:func:`_centre`); every chain between
    branch nodes and leaves is smoothed (:data:`SMOOTH`) and simplified (Douglas–Peucker at :data:`BEND` of
    the diagonal keeps its bends) and cut into bones of at most :data:`MAX_BONE`; a chain ending in a leaf (a
    limb, a finger, a tail) longer than :data:`LIMB` gets at least :data:`LIMB_BONES` bones; joints closer
@@ -355,6 +355,27 @@ def _chain_joints(points: np.ndarray, to_leaf: bool, diag: float, bends: tuple[i
     return picked[1:]
 
 
+def _centre(adj: list[set[int]], centroids: np.ndarray, values: np.ndarray) -> int:
+    """The root: the branch node from which the farthest leaf, along the tree, is nearest (the tree's centre
+    among its branch nodes: a biped's pelvis, where a drawn skeleton has its root, rather than its chest,
+    whose arms and head weigh on the AGD); ties to the smaller AGD. A tree without branches: its node of
+    smallest AGD.
+    """
+    from scipy.sparse.csgraph import dijkstra
+
+    alive = [n for n, s in enumerate(adj) if s]
+    branch = [n for n in alive if len(adj[n]) > 2]
+    if len(branch) < 2:
+        return min(branch or alive, key=lambda n: values[n])
+    rows = [i for i, s in enumerate(adj) for _ in s]
+    cols = [j for s in adj for j in s]
+    length = np.linalg.norm(centroids[rows] - centroids[cols], axis=1) + 1e-12
+    graph = sp.coo_matrix((length, (rows, cols)), shape=(len(adj), len(adj))).tocsr()
+    leaves = [n for n in alive if len(adj[n]) == 1]
+    farthest = dijkstra(graph, indices=branch)[:, leaves].max(axis=1)
+    return min(zip(farthest.tolist(), values[branch].tolist(), branch, strict=True))[2]
+
+
 def _limb_joints(points: np.ndarray, diag: float, bends: tuple[int, ...] = ()) -> list[int]:
     """:func:`_chain_joints` of a limb that leaves the body at a branch node, with a joint at its base: the
     first point at least half :data:`MIN_BONE` from the branch (the limb's first band: the shoulder, the
@@ -437,8 +458,7 @@ def _tree(vertices: np.ndarray, faces: np.ndarray) -> _Tree:
     alive = [n for n, s in enumerate(adj) if s]
     if not alive:
         raise InputError("the mesh has no extent along which to place bones (its geodesic distances are flat)")
-    branch = [n for n in alive if len(adj[n]) > 2]
-    root = min(branch or alive, key=lambda n: values[n])
+    root = _centre(adj, centroids, values)
     area = np.bincount(fc.ravel(), weights=np.repeat(face_areas(v, fc), 3), minlength=v.shape[0])
     level = values / max(float(np.sum(area * agd) / max(area.sum(), 1e-30)), 1e-30)
     if given.shape[0] != n_given:
