@@ -14,7 +14,8 @@ from ncflow.geometry.winding import winding_numbers
 from ncflow.io.meshes import load_mesh, save_mesh
 from ncflow.matcher.pose_hypotheses import exchangeable_limbs
 from ncflow.skeleton import load_skeleton
-from ncflow.skeleton.suggest import MAX_BONE, _chain_joints, extent, merge_hubs, prune_branches, suggest_skeleton
+from ncflow.skeleton.reeb import extent, merge_hubs, prune_branches
+from ncflow.skeleton.suggest import MAX_BONE, _chain_joints, suggest_skeleton
 from ncflow.synthetic.characters import make_character, pose_character
 
 TIP_BOUND = 0.05
@@ -61,7 +62,7 @@ def test_generated_characters(kind, seed):
 def test_large_mesh_is_decimated_first():
     """A 40k-vertex humanoid (the generated one subdivided twice; decimated to MAX_VERTICES inside): a leaf
     near every true limb tip, every joint inside, and the AGD given for every vertex."""
-    from ncflow.skeleton.suggest import MAX_VERTICES
+    from ncflow.skeleton.reeb import MAX_VERTICES
 
     ch = make_character("humanoid", 0)
     v, f = trimesh.remesh.subdivide(*trimesh.remesh.subdivide(ch.mesh.vertices, ch.mesh.faces))
