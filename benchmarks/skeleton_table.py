@@ -2,7 +2,7 @@
 characters (seeds 0–2), a sphere and a torus, and, with ``--pairs DIR``, the sources of pairs made by
 ``benchmarks/hard_pairs.sh`` with their drawn skeletons. Per mesh: vertices, joints (true), leaves, "tip"
 (the largest distance from a true limb tip to the nearest suggested leaf, share of the diagonal), "base"
-(the same for the true joints where limbs leave a branch joint), inside (share of joints with winding
+(the same for the true joints where limbs leave a branch joint: mean and largest), inside (share of joints with winding
 number > 1/2), exchangeable limb pairs (suggested / true: what the pose search can try swapped), seconds.
 
 Usage: python benchmarks/skeleton_table.py [--pairs hard/pairs NAME ...]
@@ -44,8 +44,8 @@ def row(name: str, v: np.ndarray, f: np.ndarray, true=None) -> str:
         tp = np.asarray(true.parents)
         leaves = sk.positions[_leaves(parents)]
         tip = max(np.linalg.norm(leaves - true.positions[j], axis=1).min() for j in _leaves(tp)) / diag
-        base = max(np.linalg.norm(sk.positions - true.positions[j], axis=1).min() for j in _bases(tp)) / diag
-        cells += [f"{tip:.3f}", f"{base:.3f}"]
+        base = [np.linalg.norm(sk.positions - true.positions[j], axis=1).min() / diag for j in _bases(tp)]
+        cells += [f"{tip:.3f}", f"{np.mean(base):.3f} / {np.max(base):.3f}"]
         cells.append(f"{len(exchangeable_limbs(sk))} / {len(exchangeable_limbs(true))}")
     else:
         cells += ["–", "–", f"{len(exchangeable_limbs(sk))}"]
@@ -54,7 +54,7 @@ def row(name: str, v: np.ndarray, f: np.ndarray, true=None) -> str:
 
 
 def main() -> None:
-    print("| mesh | vertices | joints (true) | leaves | tip | base | exchangeable | inside | seconds |")
+    print("| mesh | vertices | joints (true) | leaves | tip | base (mean / max) | exchangeable | inside | seconds |")
     print("|---|---|---|---|---|---|---|---|---|")
     for kind in ("humanoid", "hand", "quadruped"):
         for seed in (0, 1, 2):
