@@ -7,8 +7,7 @@ Steps 0–3 (the surface, the AGD, the Reeb graph, pruning, hubs and root) are :
    simplified (Douglas–Peucker at :data:`BEND` of the diagonal keeps its bends) and cut into bones of at most
    :data:`MAX_BONE`; a chain ending in a leaf (a limb, a finger, a tail) longer than :data:`LIMB` gets at
    least :data:`LIMB_BONES` bones; joints closer than :data:`MIN_BONE` along a chain are merged. A limb that
-   leaves the body at a branch node gets a joint at its base (:func:`_limb_joints`), moved into the body by
-   the limb's radius if it is one of a pair (:func:`_base_inward`), and alike limbs from one
+   leaves the body at a branch node gets a joint at its base (:func:`_limb_joints`), and alike limbs from one
    node alike joints (:func:`_alike_limbs_alike`). **Other poses** of the same body (a match's target, a
    track's frames) show where a limb that is straight here articulates: where their alike limbs bend, at the
    same AGD below the tip, this limb is cut too (:func:`_bends_seen`), and then only by length where bones
@@ -52,12 +51,7 @@ SMOOTH = 3
 LIMB = 0.15
 """A chain ending in a leaf at least this long (share of the diagonal) is a limb ..."""
 LIMB_BONES = 3
-"""... and gets this many bones beyond its base (upper, lower, extremity; a finger's phalanges) ..."""
-LIMB_MAX_BONE = 0.25
-"""... or more where one would be longer than this (share of the diagonal: a long tail)."""
-BASE_REACH = 0.7
-"""A limb's base joint moves inward by at most this share of its distance (along the limb) from the branch
-node it hangs from (:func:`_base_inward`)."""
+"""... and gets at least this many bones (upper, lower, extremity; a finger's phalanges)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -159,49 +153,6 @@ def _limb_joints(points: np.ndarray, diag: float, bends: tuple[int, ...] = ()) -
     return [base] + [base + k for k in rest]
 
 
-def _base_inward(tree: LimbTree, chain: list[int], k: int) -> np.ndarray:
-    """The base joint of a limb (point ``k`` of ``chain``, a limb that leaves the body at a branch node) moved
-    back along the limb's axis by the limb's radius there, towards the branch node but at most
-    :data:`BASE_REACH` of the way: the limb's first band lies where the limb has left the body (an armpit's,
-    a crotch's, a finger's web ring), while a drawn skeleton turns the limb about a point inside the body on
-    its axis (the shoulder, the hip, the knuckle), about a radius further in. Only for paired limbs
-    (:func:`_paired_limbs`: a biped's neck joint is where the neck leaves the body); where another pose bends
-    the limb at or above its base (:func:`_bends_seen`), the band keeps a joint too (the limb is seen to
-    turn there) and this one is added above it.
-    """
-    points = _smoothed(tree.centroids[chain])
-    arc = arc_lengths(points)
-    ahead = np.flatnonzero(arc >= arc[k] + MIN_BONE * tree.diag)
-    stop = ahead[0] if ahead.size else len(chain) - 1
-    radius = float(np.median(tree.radii[chain[k : stop + 1]]))
-    far = points[ahead[0]] if ahead.size else points[-1]
-    axis = far - points[k]
-    axis = axis / max(float(np.linalg.norm(axis)), 1e-30)
-    base = tree.centroids[chain[k]]
-    room = float(np.dot(base - points[0], axis))
-    return base - min(radius, BASE_REACH * max(room, 0.0)) * axis
-
-
-def _alike(a: float, b: float) -> bool:
-    """Two limbs' lengths within :data:`ALIKE` of each other."""
-    return bool(a <= ALIKE * b and b <= ALIKE * a)
-
-
-def _paired_limbs(tree: LimbTree) -> set[int]:
-    """The limbs (chain indices) that hang from a node with an alike limb beside them (:func:`_alike`): arms,
-    legs, fingers — a biped's head has none. (Thickness does not tell them apart: a thumb is as thick at its
-    base as a hand's wrist.)
-    """
-    length = [float(arc_lengths(tree.centroids[c])[-1]) for c in tree.chains]
-    limbs = [c for c, chain in enumerate(tree.chains) if len(tree.adj[chain[-1]]) == 1]
-    return {
-        c
-        for c in limbs
-        for r in limbs
-        if r != c and tree.chains[r][0] == tree.chains[c][0] and _alike(length[r], length[c])
-    }
-
-
 def _alike_limbs_alike(tree: LimbTree, picks: list[list[int]]) -> list[list[int]]:
     """Limbs that hang from the same node and are alike in length (within :data:`ALIKE`: left and right
     legs, fingers) cut at the same shares of their length as the one of them with the most joints: a
@@ -214,7 +165,7 @@ def _alike_limbs_alike(tree: LimbTree, picks: list[list[int]]) -> list[list[int]
     for start in {tree.chains[c][0] for c in limbs}:
         group = sorted((c for c in limbs if tree.chains[c][0] == start), key=lambda c: -len(picks[c]))
         for c in group:
-            ref = next(r for r in group if _alike(arcs[r][-1], arcs[c][-1]))
+            ref = next(r for r in group if arcs[r][-1] <= ALIKE * arcs[c][-1] and arcs[c][-1] <= ALIKE * arcs[r][-1])
             if ref == c or len(picks[ref]) == len(picks[c]):
                 continue
             share = arcs[c] / max(arcs[c][-1], 1e-30)
@@ -224,20 +175,6 @@ def _alike_limbs_alike(tree: LimbTree, picks: list[list[int]]) -> list[list[int]
             if not cuts or cuts[-1] < len(share) - 1:
                 out[c] = [*cuts, len(share) - 1]
     return out
-
-
-def _sharpest(points: np.ndarray, k: int) -> int:
-    """Of the inner points ``k - 1``, ``k``, ``k + 1`` of a polyline, the one where it turns most: a bend
-    found on the smoothed chain (which rounds a corner over its neighbours, most where the first band lies
-    far from the branch node) put back on the band where the limb bends.
-    """
-    near = [j for j in (k - 1, k, k + 1) if 0 < j < points.shape[0] - 1]
-    turn = [float(np.dot(_unit(points[j] - points[j - 1]), _unit(points[j + 1] - points[j]))) for j in near]
-    return near[int(np.argmin(turn))]
-
-
-def _unit(x: np.ndarray) -> np.ndarray:
-    return x / max(float(np.linalg.norm(x)), 1e-30)
 
 
 def _bends_seen(tree: LimbTree, other: LimbTree) -> dict[int, tuple[int, ...]]:
@@ -251,8 +188,8 @@ def _bends_seen(tree: LimbTree, other: LimbTree) -> dict[int, tuple[int, ...]]:
     """
     seen = []
     for chain in other.limbs():
-        raw = other.centroids[chain]
-        inner = [_sharpest(raw, k) for k in _douglas_peucker(_smoothed(raw), BEND * other.diag)[1:-1]]
+        pts = _smoothed(other.centroids[chain])
+        inner = _douglas_peucker(pts, BEND * other.diag)[1:-1]
         tip = float(other.level[chain[-1]])
         seen.append((tip, [tip - float(other.level[chain[k]]) for k in inner]))
     out = {}
@@ -353,23 +290,12 @@ def suggest_skeleton(
             picks.append(_chain_joints(points, to_leaf, diag, bends.get(c, ())))
     picks = _alike_limbs_alike(tree, picks)
     joints, parents, index = [tree.centroids[tree.root]], [-1], {tree.root: 0}
-    paired = _paired_limbs(tree)
-    for c, (chain, picked) in enumerate(zip(tree.chains, picks, strict=True)):
+    for chain, picked in zip(tree.chains, picks, strict=True):
         parent = index[chain[0]]
-        base = len(picked) > 1 and c in paired and len(tree.adj[chain[0]]) > 2
-        for i, k in enumerate(picked):
+        for k in picked:
             node = chain[k]
             if node not in index:
-                at = tree.centroids[node]
-                if i == 0 and base:
-                    inward = _base_inward(tree, chain, k)
-                    if any(b <= k for b in bends.get(c, ())):  # seen bending here: a joint inside and one here
-                        joints.append(inward)
-                        parents.append(parent)
-                        parent = len(joints) - 1
-                    else:
-                        at = inward
-                joints.append(at)
+                joints.append(tree.centroids[node])
                 parents.append(parent)
                 index[node] = len(joints) - 1
             parent = index[node]
