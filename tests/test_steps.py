@@ -86,3 +86,49 @@ def test_a_match_starts_from_an_earlier_result(pair, config):
     assert np.isfinite(more.deformed_source).all()
     assert np.abs(more.deformed_source - first.deformed_source).max() > 1e-4
     assert Placed.of_result(first).initial_pose is first.state.pose
+
+
+def _fake_placed(setup, score: float) -> Placed:
+    from ncflow.matcher.placement import Placement
+    from ncflow.matcher.pose_search import PoseSearchResult
+    from ncflow.skeleton.kinematics import rest_pose
+
+    pose = rest_pose(setup.skeleton_normalized)
+    return Placed(Placement.identity(), pose, PoseSearchResult(pose, score, 1.0, 1))
+
+
+def test_a_suggested_skeleton_chosen_by_its_pose(pair, config, monkeypatch):
+    """Without a skeleton, prepare suggests two (base joints on the limbs' first rings, and inside); the
+    matcher keeps the one whose searched pose explains the target best, records both scores, and drops the
+    other; without a pose search the first is placed alone."""
+    import ncflow.matcher.place as place_module
+    from ncflow.matcher.place import place_suggested
+    from ncflow.matcher.prepare import with_joints
+
+    src, tgt, _ = pair
+    setup = prepare(src, tgt, None, config)
+    assert len(setup.alternatives) == 1 and setup.skeleton_suggested["bases"] == "ring"
+    assert setup.alternatives[0].skeleton_suggested["bases"] == "inside"
+    scores = {id(setup): 0.7, id(setup.alternatives[0]): 0.4}
+    calls = []
+
+    def fake_place(s, cfg, message=None):
+        calls.append(s.skeleton_suggested["bases"])
+        return _fake_placed(s, scores[id(s)])
+
+    monkeypatch.setattr(place_module, "place", fake_place)
+    chosen, placed = place_suggested(setup, config)
+    assert calls == ["ring", "inside"] and placed.pose_search.score == 0.4
+    assert chosen.skeleton is setup.alternatives[0].skeleton and chosen.alternatives == ()
+    info = chosen.skeleton_suggested
+    assert info["bases"] == "inside"
+    assert [(c["bases"], c["pose_score"]) for c in info["candidates"]] == [("ring", 0.7), ("inside", 0.4)]
+    assert [c["n_joints"] for c in info["candidates"]] == [setup.skeleton.n_joints, chosen.skeleton.n_joints]
+    calls.clear()
+    off = dataclasses.replace(config, pose_search=False)
+    first, _ = place_suggested(setup, off)
+    assert calls == ["ring"] and first is setup
+    n = setup.alternatives[0].skeleton.n_joints
+    if n != setup.skeleton.n_joints:
+        assert with_joints(setup, n).skeleton is setup.alternatives[0].skeleton
+    assert with_joints(setup, 10_000) is setup

@@ -280,3 +280,28 @@ def place(setup: Setup, config, message=lambda text: None) -> Placed:
         skin_aware=setup.skinning_weights["mode"] == "surface",
     )
     return Placed(placement, None if search is None else search.pose, search, trials, t_place, t_search, cache)
+
+
+def place_suggested(setup: Setup, config, message=lambda text: None) -> tuple[Setup, Placed]:
+    """:func:`place` for a problem whose skeleton was suggested in several ways (``setup.alternatives``,
+    :func:`ncflow.matcher.prepare.suggested_skeletons`): each placed and its pose searched, the one whose
+    pose explains the target best (lowest pose-search score, comparable across skeletons: the same source
+    and target Diracs, each posed source's distance to the target) kept, with every candidate's score in
+    ``skeleton_suggested["candidates"]``. A problem with one skeleton, or without a pose search, is
+    :func:`place` of ``setup`` (the first suggestion).
+    """
+    if not setup.alternatives or not searches_pose(config):
+        return setup, place(setup, config, message)
+    tried = []
+    for k, candidate in enumerate((setup, *setup.alternatives)):
+        message(f"searching the pose with suggested skeleton {k + 1} of {len(setup.alternatives) + 1} ...")
+        tried.append((candidate, place(candidate, config, message)))
+    scores = [placed.pose_search.score for _, placed in tried]
+    best = int(np.argmin(scores))
+    candidates = [
+        {"bases": s.skeleton_suggested["bases"], "n_joints": s.skeleton.n_joints, "pose_score": float(score)}
+        for (s, _), score in zip(tried, scores)
+    ]
+    chosen, placed = tried[best]
+    info = dict(chosen.skeleton_suggested, candidates=candidates)
+    return dataclasses.replace(chosen, skeleton_suggested=info, alternatives=()), placed

@@ -30,7 +30,7 @@ from ncflow.geometry.topology import Topology, mesh_topology
 from ncflow.matcher.inputs import check_inputs, cloud_surface, cloud_warning, intake, load_inputs
 from ncflow.skeleton import Skeleton
 from ncflow.skeleton.checks import bones_partly_outside, flesh_radius, inside_axial_ranges
-from ncflow.skeleton.suggest import suggest_skeleton
+from ncflow.skeleton.suggest import BASES, suggest_skeletons
 from ncflow.tissue import centroids_digest, load_tissue_file, tissue_centroids
 
 DTYPE = jnp.float32  # training dtype (DESIGN.md: float32 for training)
@@ -74,6 +74,9 @@ class Setup:
             given, or None.
         target_cloud: for a point-cloud target (``target`` then holds its points and no faces), what
             :func:`~ncflow.matcher.inputs.cloud_surface` did to make the surface the match sees; else None.
+        alternatives: the same problem with each other suggested skeleton (:func:`suggested_skeletons`: its
+            limbs' base joints put another way) when none was given; the pose search chooses
+            (:func:`ncflow.matcher.place.place_suggested`).
     """
 
     source: Mesh
@@ -100,6 +103,7 @@ class Setup:
     skinning_weights: dict
     skeleton_suggested: dict | None = None
     target_cloud: dict | None = None
+    alternatives: tuple[Setup, ...] = ()
 
 
 def bone_radii(config, skeleton: Skeleton, flesh: Float[np.ndarray, " B"]) -> Float[np.ndarray, " B"]:
@@ -117,24 +121,39 @@ def bone_radii(config, skeleton: Skeleton, flesh: Float[np.ndarray, " B"]) -> Fl
 
 
 def suggested_skeleton(src, message=lambda text: None, others=()) -> tuple[Skeleton, dict]:
-    """A skeleton suggested for the repaired source (:func:`ncflow.skeleton.suggest.suggest_skeleton`; the
-    repaired target or frames ``others``, meshes of the same body in other poses, show where the source's
-    limbs bend) and what ``metrics.json`` says of it
-    (``n_joints``, ``n_leaves``, ``moved_inside``, ``bends_seen``, ``seconds``).
+    """A skeleton suggested for the repaired source, its limbs' base joints where they leave the body
+    (:func:`suggested_skeletons` with ``bases="ring"``).
+    """
+    return suggested_skeletons(src, message, others, bases=("ring",))[0]
+
+
+def suggested_skeletons(src, message=lambda text: None, others=(), bases=BASES) -> list[tuple[Skeleton, dict]]:
+    """Skeletons suggested for the repaired source, one per ``bases``
+    (:func:`ncflow.skeleton.suggest.suggest_skeletons`; the repaired target or frames ``others``, meshes
+    of the same body in other poses, show where the source's limbs bend), each with what ``metrics.json``
+    says of it (``n_joints``, ``n_leaves``, ``moved_inside``, ``bends_seen``, ``bases``, ``seconds``).
     """
     message("no skeleton given: suggesting one from the source ...")
     t0 = time.perf_counter()
     poses = [(m.vertices, m.faces) for m in others if m.faces.shape[0] >= 20]
-    found = suggest_skeleton(src.vertices, src.faces, name=f"{src.name or 'source'} (suggested)", other_poses=poses)
-    info = {
-        "n_joints": found.skeleton.n_joints,
-        "n_leaves": found.n_leaves,
-        "moved_inside": found.moved_inside,
-        "bends_seen": found.bends_seen,
-        "seconds": time.perf_counter() - t0,
-        "file": "skeleton_source.tgf",
-    }
-    return found.skeleton, info
+    name = f"{src.name or 'source'} (suggested)"
+    found = suggest_skeletons(src.vertices, src.faces, name=name, other_poses=poses, bases=bases)
+    seconds = time.perf_counter() - t0
+    return [
+        (
+            f.skeleton,
+            {
+                "n_joints": f.skeleton.n_joints,
+                "n_leaves": f.n_leaves,
+                "moved_inside": f.moved_inside,
+                "bends_seen": f.bends_seen,
+                "bases": f.bases,
+                "seconds": seconds,
+                "file": "skeleton_source.tgf",
+            },
+        )
+        for f in found
+    ]
 
 
 def skinning_width(config, skeleton: Skeleton) -> float:
@@ -195,65 +214,81 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Setu
         intake(src, "source", config),
         intake(surface, "target", config),
     )
-    suggested = None
-    if skel is None:
-        skel, suggested = suggested_skeleton(src_c, message, [tgt_c])
-    tgt_f, warnings = check_inputs(src_c, tgt_c, skel)
-    warnings = src_note + tgt_note + warnings
-    if suggested is not None:
-        warnings.insert(
-            0,
-            f"no skeleton given: one was suggested from the source ({suggested['n_joints']} joints, "
-            f"{suggested['n_leaves']} limb tips; ncflow skeleton suggest), written as skeleton_source.tgf",
+    found = [(skel, None)] if skel is not None else suggested_skeletons(src_c, message, [tgt_c])
+    norm, work = None, None
+    setups = []
+    for k, (skel, suggested) in enumerate(found):
+        tgt_f, warnings = check_inputs(src_c, tgt_c, skel)
+        warnings = src_note + tgt_note + warnings
+        if suggested is not None:
+            warnings.insert(
+                0,
+                f"no skeleton given: one was suggested from the source ({suggested['n_joints']} joints, "
+                f"{suggested['n_leaves']} limb tips; ncflow skeleton suggest), written as skeleton_source.tgf",
+            )
+        shown = message if k == 0 else (lambda text: None)  # an alternative's notes are the chosen one's
+        for w in warnings:
+            shown(f"warning: {w}")
+        if norm is None:
+            norm, work = working_source(src_c, config, message)
+            t0 = time.perf_counter()
+            centroids, tissue_info = source_tissue(work, config, message)
+            tissue_seconds = time.perf_counter() - t0
+            source_topology = mesh_topology(work.faces, work.vertices.shape[0], name=src.name)
+            target_topology = mesh_topology(tgt_f, tgt_c.n_vertices, name=tgt.name)
+        skel_n = skel.with_positions(norm.apply(skel.positions))
+        ranges, inside = inside_axial_ranges(skel_n, work.vertices, work.faces)
+        weights = skinning_weight_mode(config, work.vertices, work.faces, tgt_c.vertices, tgt_f, skel_n, ranges)
+        warnings.extend(bones_partly_outside(skel, inside))
+        if weights["mode"] == "surface" and config.flow.skinning_weights == "auto":
+            shown(
+                f"the source's limbs touch ({weights['source_contact']:.1%} of its area lies nearer another "
+                "limb's bone than its own): bone weights taken at each point's start, from the bones under its skin"
+            )
+        if weights["mode"] == "start" and config.flow.skinning_weights == "auto":
+            shown(
+                f"the target passes through itself ({weights['target_overlap']:.1%} of its area, the source "
+                f"{weights['source_overlap']:.1%}): bone weights taken at each point's start"
+            )
+        setups.append(
+            Setup(
+                source=src,
+                target=tgt,
+                skeleton=skel,
+                normalization=norm,
+                source_vertices=norm.apply(src.vertices),
+                working=work,
+                target_vertices=norm.apply(tgt_c.vertices),
+                target_faces=tgt_f,
+                target_points=norm.apply(tgt.vertices),
+                source_repair=src_r,
+                target_repair=tgt_r,
+                skeleton_normalized=skel_n,
+                source_topology=source_topology,
+                target_topology=target_topology,
+                bone_radii=bone_radii(config, skel_n, flesh_radius(skel_n, work.vertices)),
+                bone_ranges=ranges,
+                bone_inside=inside,
+                centroids=centroids,
+                tissue_info=tissue_info,
+                tissue_seconds=tissue_seconds,
+                warnings=tuple(warnings),
+                skinning_weights=weights,
+                skeleton_suggested=suggested,
+                target_cloud=cloud,
+            )
         )
-    for w in warnings:
-        message(f"warning: {w}")
-    norm, work = working_source(src_c, config, message)
-    skel_n = skel.with_positions(norm.apply(skel.positions))
-    t0 = time.perf_counter()
-    centroids, tissue_info = source_tissue(work, config, message)
-    tissue_seconds = time.perf_counter() - t0
-    source_topology = mesh_topology(work.faces, work.vertices.shape[0], name=src.name)
-    target_topology = mesh_topology(tgt_f, tgt_c.n_vertices, name=tgt.name)
-    ranges, inside = inside_axial_ranges(skel_n, work.vertices, work.faces)
-    weights = skinning_weight_mode(config, work.vertices, work.faces, tgt_c.vertices, tgt_f, skel_n, ranges)
-    warnings.extend(bones_partly_outside(skel, inside))
-    if weights["mode"] == "surface" and config.flow.skinning_weights == "auto":
-        message(
-            f"the source's limbs touch ({weights['source_contact']:.1%} of its area lies nearer another "
-            "limb's bone than its own): bone weights taken at each point's start, from the bones under its skin"
-        )
-    if weights["mode"] == "start" and config.flow.skinning_weights == "auto":
-        message(
-            f"the target passes through itself ({weights['target_overlap']:.1%} of its area, the source "
-            f"{weights['source_overlap']:.1%}): bone weights taken at each point's start"
-        )
-    return Setup(
-        source=src,
-        target=tgt,
-        skeleton=skel,
-        normalization=norm,
-        source_vertices=norm.apply(src.vertices),
-        working=work,
-        target_vertices=norm.apply(tgt_c.vertices),
-        target_faces=tgt_f,
-        target_points=norm.apply(tgt.vertices),
-        source_repair=src_r,
-        target_repair=tgt_r,
-        skeleton_normalized=skel_n,
-        source_topology=source_topology,
-        target_topology=target_topology,
-        bone_radii=bone_radii(config, skel_n, flesh_radius(skel_n, work.vertices)),
-        bone_ranges=ranges,
-        bone_inside=inside,
-        centroids=centroids,
-        tissue_info=tissue_info,
-        tissue_seconds=tissue_seconds,
-        warnings=tuple(warnings),
-        skinning_weights=weights,
-        skeleton_suggested=suggested,
-        target_cloud=cloud,
-    )
+    return dataclasses.replace(setups[0], alternatives=tuple(setups[1:]))
+
+
+def with_joints(setup: Setup, n_joints: int) -> Setup:
+    """Of ``setup`` and its :attr:`Setup.alternatives`, the first whose skeleton has ``n_joints`` joints
+    (an earlier result's, to start from), without alternatives; ``setup`` when none has.
+    """
+    for s in (setup, *setup.alternatives):
+        if s.skeleton.n_joints == n_joints:
+            return dataclasses.replace(s, alternatives=())
+    return setup
 
 
 AUTO_OVERLAP = 0.005

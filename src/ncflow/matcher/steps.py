@@ -24,12 +24,13 @@ import dataclasses
 import time
 
 import jax
+import numpy as np
 
 from ncflow.config import Config, preset, validate_config
 from ncflow.jit.cache import configure_compilation_cache
-from ncflow.matcher.place import Placed, place
+from ncflow.matcher.place import Placed, place, place_suggested
 from ncflow.matcher.placement import Placement
-from ncflow.matcher.prepare import prepare
+from ncflow.matcher.prepare import prepare, with_joints
 from ncflow.matcher.programs import Programs, build_programs, check_programs
 from ncflow.matcher.progress import Progress
 from ncflow.matcher.result import MatchResult
@@ -127,13 +128,16 @@ class Matcher:
         self.keys = run_keys(self.config.seed)  # initialisation, training, outputs
         self.start = start
         self.setup = prepare(source, target, skeleton, self.config, message=self.progress.message)
+        placed = None
+        if start is not None:
+            self.setup = with_joints(self.setup, np.asarray(start.state.pose.rotations).shape[0])
+            placed = Placed.of_result(start)
+        elif self.setup.alternatives:  # a suggested skeleton: the pose search chooses before programs are built
+            self.setup, placed = place_suggested(self.setup, self.config, message=self.progress.message)
         self.programs = build_programs(self.setup, self.config, self.keys) if programs is None else programs
         if programs is not None:
             check_programs(programs, self.setup, self.config)
-        if start is None:
-            self.placed = place(self.setup, self.config, message=self.progress.message)
-        else:
-            self.placed = Placed.of_result(start)
+        self.placed = place(self.setup, self.config, message=self.progress.message) if placed is None else placed
         self.timings = {
             "setup": 0.0,
             "placement": self.placed.placement_seconds,

@@ -272,11 +272,14 @@ def _centre(adj: list[set[int]], centroids: np.ndarray, values: np.ndarray) -> i
 @dataclasses.dataclass(frozen=True)
 class LimbTree:
     """A mesh's pruned Reeb tree: node centroids, node AGD (divided by the surface's mean AGD, so that two
-    poses of one body in any units compare), neighbours, root, the chains from the root, and the mesh.
+    poses of one body in any units compare), node radii (a ring's mean distance from its centroid: about
+    the limb's radius there; a merged hub keeps its first node's), neighbours, root, the chains from the
+    root, and the mesh.
     """
 
     centroids: np.ndarray
     level: np.ndarray
+    radii: np.ndarray
     adj: list[set[int]]
     root: int
     chains: list[list[int]]
@@ -321,7 +324,7 @@ def limb_tree(vertices: np.ndarray, faces: np.ndarray) -> LimbTree:
 
         agd = agd[cKDTree(v[:n_given]).query(given)[1]]
         n_given = given.shape[0]
-    return LimbTree(centroids, level, adj, root, _chains(adj, root), agd, diag, shape, n_given)
+    return LimbTree(centroids, level, radii, adj, root, _chains(adj, root), agd, diag, shape, n_given)
 
 
 def _capped(v: np.ndarray, fc: np.ndarray, diag: float) -> tuple[np.ndarray, np.ndarray]:

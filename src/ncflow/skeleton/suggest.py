@@ -7,7 +7,9 @@ Steps 0–3 (the surface, the AGD, the Reeb graph, pruning, hubs and root) are :
    simplified (Douglas–Peucker at :data:`BEND` of the diagonal keeps its bends) and cut into bones of at most
    :data:`MAX_BONE`; a chain ending in a leaf (a limb, a finger, a tail) longer than :data:`LIMB` gets at
    least :data:`LIMB_BONES` bones; joints closer than :data:`MIN_BONE` along a chain are merged. A limb that
-   leaves the body at a branch node gets a joint at its base (:func:`_limb_joints`), and alike limbs from one
+   leaves the body at a branch node gets a joint at its base (:func:`_limb_joints`) — where it has left the
+   body (``bases="ring"``), or moved into the body by the limb's radius if it is one of a pair
+   (``bases="inside"``, :func:`_base_inward`: a shoulder, a hip, a knuckle) — and alike limbs from one
    node alike joints (:func:`_alike_limbs_alike`). **Other poses** of the same body (a match's target, a
    track's frames) show where a limb that is straight here articulates: where their alike limbs bend, at the
    same AGD below the tip, this limb is cut too (:func:`_bends_seen`), and then only by length where bones
@@ -52,6 +54,13 @@ LIMB = 0.15
 """A chain ending in a leaf at least this long (share of the diagonal) is a limb ..."""
 LIMB_BONES = 3
 """... and gets at least this many bones (upper, lower, extremity; a finger's phalanges)."""
+BASE_REACH = 0.7
+"""A limb's base joint moves inward by at most this share of its distance (along the limb) from the branch
+node it hangs from (:func:`_base_inward`)."""
+BASES = ("ring", "inside")
+"""Where a limb's base joint goes (:func:`suggest_skeleton`): the first ring outside the body, or a radius
+further in for paired limbs. Neither is right on every body (docs/skeleton-suggest.md): ``ncflow match``
+without a skeleton tries both and keeps the one whose pose explains the target best."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,6 +74,7 @@ class SuggestedSkeleton:
         n_leaves: leaves of the skeleton (limb tips).
         moved_inside: joints moved inside the mesh (step 5).
         bends_seen: chain points cut because the other pose bends its limb there (0 without one).
+        bases: where limbs' base joints were put (:data:`BASES`).
     """
 
     skeleton: Skeleton
@@ -73,6 +83,7 @@ class SuggestedSkeleton:
     n_leaves: int
     moved_inside: int
     bends_seen: int = 0
+    bases: str = "ring"
 
 
 def _douglas_peucker(points: np.ndarray, tolerance: float) -> list[int]:
@@ -153,6 +164,49 @@ def _limb_joints(points: np.ndarray, diag: float, bends: tuple[int, ...] = ()) -
     return [base] + [base + k for k in rest]
 
 
+def _base_inward(tree: LimbTree, chain: list[int], k: int) -> np.ndarray:
+    """The base joint of a limb (point ``k`` of ``chain``, a limb that leaves the body at a branch node) moved
+    back along the limb's axis by the limb's radius there, towards the branch node but at most
+    :data:`BASE_REACH` of the way: the limb's first band lies where the limb has left the body (an armpit's,
+    a crotch's, a finger's web ring), while a drawn skeleton turns the limb about a point inside the body on
+    its axis (the shoulder, the hip, the knuckle), about a radius further in. Only for paired limbs
+    (:func:`_paired_limbs`: a biped's neck joint is where the neck leaves the body); where another pose bends
+    the limb at or above its base (:func:`_bends_seen`), the band keeps a joint too (the limb is seen to
+    turn there) and this one is added above it.
+    """
+    points = _smoothed(tree.centroids[chain])
+    arc = arc_lengths(points)
+    ahead = np.flatnonzero(arc >= arc[k] + MIN_BONE * tree.diag)
+    stop = ahead[0] if ahead.size else len(chain) - 1
+    radius = float(np.median(tree.radii[chain[k : stop + 1]]))
+    far = points[ahead[0]] if ahead.size else points[-1]
+    axis = far - points[k]
+    axis = axis / max(float(np.linalg.norm(axis)), 1e-30)
+    base = tree.centroids[chain[k]]
+    room = float(np.dot(base - points[0], axis))
+    return base - min(radius, BASE_REACH * max(room, 0.0)) * axis
+
+
+def _alike(a: float, b: float) -> bool:
+    """Two limbs' lengths within :data:`ALIKE` of each other."""
+    return bool(a <= ALIKE * b and b <= ALIKE * a)
+
+
+def _paired_limbs(tree: LimbTree) -> set[int]:
+    """The limbs (chain indices) that hang from a node with an alike limb beside them (:func:`_alike`): arms,
+    legs, fingers — a biped's head has none. (Thickness does not tell them apart: a thumb is as thick at its
+    base as a hand's wrist.)
+    """
+    length = [float(arc_lengths(tree.centroids[c])[-1]) for c in tree.chains]
+    limbs = [c for c, chain in enumerate(tree.chains) if len(tree.adj[chain[-1]]) == 1]
+    return {
+        c
+        for c in limbs
+        for r in limbs
+        if r != c and tree.chains[r][0] == tree.chains[c][0] and _alike(length[r], length[c])
+    }
+
+
 def _alike_limbs_alike(tree: LimbTree, picks: list[list[int]]) -> list[list[int]]:
     """Limbs that hang from the same node and are alike in length (within :data:`ALIKE`: left and right
     legs, fingers) cut at the same shares of their length as the one of them with the most joints: a
@@ -165,7 +219,7 @@ def _alike_limbs_alike(tree: LimbTree, picks: list[list[int]]) -> list[list[int]
     for start in {tree.chains[c][0] for c in limbs}:
         group = sorted((c for c in limbs if tree.chains[c][0] == start), key=lambda c: -len(picks[c]))
         for c in group:
-            ref = next(r for r in group if arcs[r][-1] <= ALIKE * arcs[c][-1] and arcs[c][-1] <= ALIKE * arcs[r][-1])
+            ref = next(r for r in group if _alike(arcs[r][-1], arcs[c][-1]))
             if ref == c or len(picks[ref]) == len(picks[c]):
                 continue
             share = arcs[c] / max(arcs[c][-1], 1e-30)
@@ -177,19 +231,36 @@ def _alike_limbs_alike(tree: LimbTree, picks: list[list[int]]) -> list[list[int]
     return out
 
 
-def _bends_seen(tree: LimbTree, other: LimbTree) -> dict[int, tuple[int, ...]]:
+def _sharpest(points: np.ndarray, k: int) -> int:
+    """Of the inner points ``k - 1``, ``k``, ``k + 1`` of a polyline, the one where it turns most: a bend
+    found on the smoothed chain (which rounds a corner over its neighbours, most where the first band lies
+    far from the branch node) put back on the band where the limb bends.
+    """
+    near = [j for j in (k - 1, k, k + 1) if 0 < j < points.shape[0] - 1]
+    turn = [float(np.dot(_unit(points[j] - points[j - 1]), _unit(points[j + 1] - points[j]))) for j in near]
+    return near[int(np.argmin(turn))]
+
+
+def _unit(x: np.ndarray) -> np.ndarray:
+    return x / max(float(np.linalg.norm(x)), 1e-30)
+
+
+def _bends_seen(tree: LimbTree, other: LimbTree, sharpest: bool = False) -> dict[int, tuple[int, ...]]:
     """For each limb of ``tree`` (the chain's index), the chain points nearest in AGD to where the limbs of
     ``other`` (the same body in another pose) that end at about the same AGD bend (their Douglas–Peucker
     joints at :data:`BEND`), matched by their AGD below the limb's tip. The AGD is intrinsic, and along a
     limb away from the body it grows as the distance along the limb: a bend seen in the other pose (an
     elbow bent there, straight here) at some AGD below its tip marks the same place on this limb, whatever
     the bend did to the AGD elsewhere; limbs alike (left and right, fingers) share their bends, as their
-    joints are alike.
+    joints are alike. ``sharpest``: each bend put back on the band of the raw chain where it turns most
+    (:func:`_sharpest`).
     """
     seen = []
     for chain in other.limbs():
-        pts = _smoothed(other.centroids[chain])
-        inner = _douglas_peucker(pts, BEND * other.diag)[1:-1]
+        raw = other.centroids[chain]
+        inner = _douglas_peucker(_smoothed(raw), BEND * other.diag)[1:-1]
+        if sharpest:
+            inner = [_sharpest(raw, k) for k in inner]
         tip = float(other.level[chain[-1]])
         seen.append((tip, [tip - float(other.level[chain[k]]) for k in inner]))
     out = {}
@@ -259,6 +330,7 @@ def suggest_skeleton(
     *,
     name: str | None = None,
     other_poses: Sequence[tuple[Float[np.ndarray, "W 3"], Int[np.ndarray, "G 3"]]] = (),
+    bases: str = "ring",
 ) -> SuggestedSkeleton:
     """A joint tree for a character mesh (module docstring); deterministic.
 
@@ -270,14 +342,39 @@ def suggest_skeleton(
         other_poses: the same body in other poses (a match's target, a sequence's frames: vertices, faces,
             each its own triangulation), whose bent limbs show where this mesh's straight ones articulate
             (:func:`_bends_seen`).
+        bases: where a limb's base joint goes (:data:`BASES`): "ring", the limb's first ring outside the
+            body; "inside", for a limb with an alike one beside it, a radius further in (:func:`_base_inward`),
+            with the other poses' bends put back where their limbs turn most.
 
     Raises:
         InputError: a mesh too small to have a shape (fewer than 20 faces).
     """
+    return suggest_skeletons(vertices, faces, name=name, other_poses=other_poses, bases=(bases,))[0]
+
+
+def suggest_skeletons(
+    vertices: Float[np.ndarray, "V 3"],
+    faces: Int[np.ndarray, "F 3"],
+    *,
+    name: str | None = None,
+    other_poses: Sequence[tuple[Float[np.ndarray, "W 3"], Int[np.ndarray, "G 3"]]] = (),
+    bases: Sequence[str] = BASES,
+) -> list[SuggestedSkeleton]:
+    """:func:`suggest_skeleton` for each of ``bases``, from one limb tree of the mesh and of each other pose."""
+    for b in bases:
+        if b not in BASES:
+            raise ValueError(f"bases must be one of {BASES}, not {b!r}")
     tree = limb_tree(vertices, faces)
+    others = [limb_tree(*other) for other in other_poses]
+    return [_joint_tree(tree, others, name, b) for b in bases]
+
+
+def _joint_tree(tree: LimbTree, others: list[LimbTree], name: str | None, bases: str) -> SuggestedSkeleton:
+    """Steps 4–5 on the limb tree ``tree``, the other poses' trees showing the bends."""
+    inside = bases == "inside"
     bends: dict[int, tuple[int, ...]] = {}
-    for other in other_poses:
-        for c, seen in _bends_seen(tree, limb_tree(*other)).items():
+    for other in others:
+        for c, seen in _bends_seen(tree, other, sharpest=inside).items():
             bends[c] = tuple(sorted(set(bends.get(c, ())) | set(seen)))
     diag = tree.diag
     picks = []
@@ -290,12 +387,23 @@ def suggest_skeleton(
             picks.append(_chain_joints(points, to_leaf, diag, bends.get(c, ())))
     picks = _alike_limbs_alike(tree, picks)
     joints, parents, index = [tree.centroids[tree.root]], [-1], {tree.root: 0}
-    for chain, picked in zip(tree.chains, picks, strict=True):
+    paired = _paired_limbs(tree) if inside else set()
+    for c, (chain, picked) in enumerate(zip(tree.chains, picks, strict=True)):
         parent = index[chain[0]]
-        for k in picked:
+        base = len(picked) > 1 and c in paired and len(tree.adj[chain[0]]) > 2
+        for i, k in enumerate(picked):
             node = chain[k]
             if node not in index:
-                joints.append(tree.centroids[node])
+                at = tree.centroids[node]
+                if i == 0 and base:
+                    inward = _base_inward(tree, chain, k)
+                    if any(b <= k for b in bends.get(c, ())):  # seen bending here: a joint inside and one here
+                        joints.append(inward)
+                        parents.append(parent)
+                        parent = len(joints) - 1
+                    else:
+                        at = inward
+                joints.append(at)
                 parents.append(parent)
                 index[node] = len(joints) - 1
             parent = index[node]
@@ -303,6 +411,5 @@ def suggest_skeleton(
     names = ["root"] + [f"j{k}" for k in range(1, len(joints))]
     skeleton = Skeleton.from_arrays(positions, np.asarray(parents), names, name=name)
     n_leaves = int(np.sum(np.bincount(np.asarray(parents[1:]), minlength=len(joints)) == 0))
-    return SuggestedSkeleton(
-        skeleton, tree.agd[: tree.n_given], len(tree.centroids), n_leaves, moved, sum(map(len, bends.values()))
-    )
+    n_bends = sum(map(len, bends.values()))
+    return SuggestedSkeleton(skeleton, tree.agd[: tree.n_given], len(tree.centroids), n_leaves, moved, n_bends, bases)
