@@ -275,6 +275,10 @@ def test_cli(tmp_path, capsys):
     assert main(args) == 2
     err = capsys.readouterr().err
     assert "tiny.ply" in err and "too few" in err and not (tmp_path / "b.tgf").exists()
+    inside = tmp_path / "inside.tgf"
+    assert main(["skeleton", "suggest", str(mesh), "--bases", "inside", "--out", str(inside)]) == 0
+    expected = suggest_skeleton(ch.mesh.vertices, ch.mesh.faces, bases="inside").skeleton.positions
+    np.testing.assert_allclose(load_skeleton(inside).positions, expected, atol=1e-5)
 
 
 def test_match_without_a_skeleton(tmp_path, capsys):

@@ -94,7 +94,7 @@ def _fake_placed(setup, score: float) -> Placed:
     from ncflow.skeleton.kinematics import rest_pose
 
     pose = rest_pose(setup.skeleton_normalized)
-    return Placed(Placement.identity(), pose, PoseSearchResult(pose, score, 1.0, 1))
+    return Placed(Placement.identity(), pose, PoseSearchResult(pose, score, 1.0, 1), (), 0.25, 1.5)
 
 
 def test_a_suggested_skeleton_chosen_by_its_pose(pair, config, monkeypatch):
@@ -119,6 +119,7 @@ def test_a_suggested_skeleton_chosen_by_its_pose(pair, config, monkeypatch):
     monkeypatch.setattr(place_module, "place", fake_place)
     chosen, placed = place_suggested(setup, config)
     assert calls == ["ring", "inside"] and placed.pose_search.score == 0.4
+    assert placed.pose_search_seconds == 2 * 1.5 and placed.placement_seconds == 2 * 0.25
     assert chosen.skeleton is setup.alternatives[0].skeleton and chosen.alternatives == ()
     info = chosen.skeleton_suggested
     assert info["bases"] == "inside"

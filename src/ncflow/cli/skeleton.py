@@ -65,6 +65,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="the same body in another pose (any triangulation; repeatable): joints go where its limbs bend, "
         "as ncflow match does with its target",
     )
+    sug.add_argument(
+        "--bases",
+        choices=("ring", "inside"),
+        default="ring",
+        help="where a limb's first joint goes: where the limb leaves the body (ring, the default), or for limbs "
+        "in pairs (arms, legs, fingers) a limb's radius further in, at a shoulder, hip or knuckle (inside); "
+        "ncflow match without --skeleton tries both and keeps the one whose pose explains its target best",
+    )
     sug.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     sug.set_defaults(func=run_suggest)
 
@@ -180,7 +188,9 @@ def run_suggest(args: argparse.Namespace) -> int:
             raise InputError(f"has {other.faces.shape[0]} faces: too few to show a pose", path)
         others.append((other.vertices, other.faces))
     try:
-        found = suggest_skeleton(mesh.vertices, mesh.faces, name=Path(args.mesh).stem, other_poses=others)
+        found = suggest_skeleton(
+            mesh.vertices, mesh.faces, name=Path(args.mesh).stem, other_poses=others, bases=args.bases
+        )
     except InputError as err:
         raise InputError(str(err), args.mesh) from None
     skel = found.skeleton

@@ -287,8 +287,8 @@ def place_suggested(setup: Setup, config, message=lambda text: None) -> tuple[Se
     :func:`ncflow.matcher.prepare.suggested_skeletons`): each placed and its pose searched, the one whose
     pose explains the target best (lowest pose-search score, comparable across skeletons: the same source
     and target Diracs, each posed source's distance to the target) kept, with every candidate's score in
-    ``skeleton_suggested["candidates"]``. A problem with one skeleton, or without a pose search, is
-    :func:`place` of ``setup`` (the first suggestion).
+    ``skeleton_suggested["candidates"]`` and the seconds of all in the returned :class:`Placed`. A problem
+    with one skeleton, or without a pose search, is :func:`place` of ``setup`` (the first suggestion).
     """
     if not setup.alternatives or not searches_pose(config):
         return setup, place(setup, config, message)
@@ -304,4 +304,9 @@ def place_suggested(setup: Setup, config, message=lambda text: None) -> tuple[Se
     ]
     chosen, placed = tried[best]
     info = dict(chosen.skeleton_suggested, candidates=candidates)
+    placed = dataclasses.replace(  # the time of every candidate's placement and search
+        placed,
+        placement_seconds=sum(p.placement_seconds for _, p in tried),
+        pose_search_seconds=sum(p.pose_search_seconds for _, p in tried),
+    )
     return dataclasses.replace(chosen, skeleton_suggested=info, alternatives=()), placed
