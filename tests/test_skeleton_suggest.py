@@ -175,6 +175,27 @@ def test_both_bases_from_one_tree():
         suggest_skeletons(v, f, bases=("middle",))
 
 
+def test_a_second_way_that_fails_is_left_out(monkeypatch):
+    """A way of placing the bases after the first whose joints make no valid skeleton (a zero-length bone) is
+    left out of suggest_skeletons; the first way's failure is raised."""
+    import ncflow.skeleton.suggest as suggest
+    from ncflow.errors import InputError
+
+    ch = make_character("humanoid", 0)
+    joint_tree = suggest._joint_tree
+
+    def failing(tree, others, name, bases, broken="inside"):
+        if bases == broken:
+            raise InputError("zero-length bone from j1 to j2")
+        return joint_tree(tree, others, name, bases)
+
+    monkeypatch.setattr(suggest, "_joint_tree", failing)
+    found = suggest_skeletons(ch.mesh.vertices, ch.mesh.faces)
+    assert [f.bases for f in found] == ["ring"]
+    with pytest.raises(InputError, match="zero-length"):
+        suggest_skeletons(ch.mesh.vertices, ch.mesh.faces, bases=("inside", "ring"))
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_paired_limbs(seed):
     """A generated humanoid's arms and legs have an alike limb beside them (with ``bases="inside"`` their base

@@ -33,6 +33,7 @@ from collections.abc import Sequence
 import numpy as np
 from jaxtyping import Float, Int
 
+from ncflow.errors import InputError
 from ncflow.geometry.closest import closest_points_on_surface
 from ncflow.geometry.skeleton import Skeleton
 from ncflow.geometry.winding import signed_volume, winding_numbers
@@ -360,13 +361,21 @@ def suggest_skeletons(
     other_poses: Sequence[tuple[Float[np.ndarray, "W 3"], Int[np.ndarray, "G 3"]]] = (),
     bases: Sequence[str] = BASES,
 ) -> list[SuggestedSkeleton]:
-    """:func:`suggest_skeleton` for each of ``bases``, from one limb tree of the mesh and of each other pose."""
+    """:func:`suggest_skeleton` for each of ``bases``, from one limb tree of the mesh and of each other pose.
+    A way after the first whose joints make no valid skeleton is left out (the first raises).
+    """
     for b in bases:
         if b not in BASES:
             raise ValueError(f"bases must be one of {BASES}, not {b!r}")
     tree = limb_tree(vertices, faces)
     others = [limb_tree(*other) for other in other_poses]
-    return [_joint_tree(tree, others, name, b) for b in bases]
+    found = [_joint_tree(tree, others, name, bases[0])]
+    for b in bases[1:]:
+        try:
+            found.append(_joint_tree(tree, others, name, b))
+        except InputError:
+            continue
+    return found
 
 
 def _joint_tree(tree: LimbTree, others: list[LimbTree], name: str | None, bases: str) -> SuggestedSkeleton:
@@ -397,12 +406,12 @@ def _joint_tree(tree: LimbTree, others: list[LimbTree], name: str | None, bases:
                 at = tree.centroids[node]
                 if i == 0 and base:
                     inward = _base_inward(tree, chain, k)
-                    if any(b <= k for b in bends.get(c, ())):  # seen bending here: a joint inside and one here
+                    if not any(b <= k for b in bends.get(c, ())):
+                        at = inward
+                    elif np.linalg.norm(inward - at) > 1e-3 * diag:  # seen bending here: one inside too
                         joints.append(inward)
                         parents.append(parent)
                         parent = len(joints) - 1
-                    else:
-                        at = inward
                 joints.append(at)
                 parents.append(parent)
                 index[node] = len(joints) - 1
