@@ -98,14 +98,16 @@ def _fake_placed(setup, score: float) -> Placed:
 
 
 def test_a_suggested_skeleton_chosen_by_its_pose(pair, config, monkeypatch):
-    """Without a skeleton, prepare suggests two (base joints on the limbs' first rings, and inside); the
-    matcher keeps the one whose searched pose explains the target best, records both scores, and drops the
-    other; without a pose search the first is placed alone."""
+    """Without a skeleton and with ``skeleton_bases="choose"``, prepare suggests two (base joints on the limbs'
+    first rings, and inside); the matcher keeps the one whose searched pose explains the target best, records
+    both scores, and drops the other; without a pose search the first is placed alone."""
     import ncflow.matcher.place as place_module
     from ncflow.matcher.place import place_suggested
     from ncflow.matcher.prepare import with_joints
 
     src, tgt, _ = pair
+    assert prepare(src, tgt, None, config).alternatives == ()  # the default: the first way alone
+    config = dataclasses.replace(config, skeleton_bases="choose")
     setup = prepare(src, tgt, None, config)
     assert len(setup.alternatives) == 1 and setup.skeleton_suggested["bases"] == "ring"
     assert setup.alternatives[0].skeleton_suggested["bases"] == "inside"

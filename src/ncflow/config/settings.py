@@ -286,6 +286,10 @@ class Config:
     (``auto`` | ``on`` | ``off``): after that search, re-pose each finger or limb with the others held
     at a finer kernel scale (:func:`ncflow.matcher.pose_search.search_chains`); ``auto``: where the
     source's limbs touch (bone weights ``"surface"``, whose first phase holds the searched pose).
+    ``skeleton_bases`` (``ring`` | ``inside`` | ``choose``): without a given skeleton, where the suggested
+    skeleton puts a limb's base joint (:func:`ncflow.skeleton.suggest.suggest_skeleton`); ``choose``: both
+    suggested, the one whose searched pose explains the target best kept (:func:`ncflow.matcher.place.place_suggested`;
+    measured, not the default: docs/skeleton-suggest.md).
     ``working_vertices``: train on a decimated copy of a source larger than this (its vertices a
     subset of the source's, :func:`ncflow.geometry.decimate.decimate`); the outputs and the
     correspondence are computed at full resolution with the trained field. ``none``: train on the
@@ -323,6 +327,9 @@ class Config:
     placement: str = setting("auto", choices=("auto", "none"), message="{name} must be 'auto' or 'none'")
     pose_search: bool = setting(True)
     pose_chains: str = setting("off", choices=("auto", "on", "off"), message="{name} must be 'auto', 'on' or 'off'")
+    skeleton_bases: str = setting(
+        "ring", choices=("ring", "inside", "choose"), message="{name} must be 'ring', 'inside' or 'choose'"
+    )
     jit_cache: str = setting("auto", check=jit_cache_problem, neutral=True)
     compile_ahead: bool = setting(True, neutral=True)
     setup_cache: bool = setting(True, neutral=True)

@@ -75,8 +75,8 @@ class Setup:
         target_cloud: for a point-cloud target (``target`` then holds its points and no faces), what
             :func:`~ncflow.matcher.inputs.cloud_surface` did to make the surface the match sees; else None.
         alternatives: the same problem with each other suggested skeleton (:func:`suggested_skeletons`: its
-            limbs' base joints put another way) when none was given; the pose search chooses
-            (:func:`ncflow.matcher.place.place_suggested`).
+            limbs' base joints put another way) when none was given and ``skeleton_bases`` is "choose";
+            the pose search chooses (:func:`ncflow.matcher.place.place_suggested`).
     """
 
     source: Mesh
@@ -214,7 +214,8 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Setu
         intake(src, "source", config),
         intake(surface, "target", config),
     )
-    found = [(skel, None)] if skel is not None else suggested_skeletons(src_c, message, [tgt_c])
+    bases = BASES if config.skeleton_bases == "choose" else (config.skeleton_bases,)
+    found = [(skel, None)] if skel is not None else suggested_skeletons(src_c, message, [tgt_c], bases)
     norm, work = None, None
     setups = []
     for k, (skel, suggested) in enumerate(found):

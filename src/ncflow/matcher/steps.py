@@ -7,8 +7,9 @@ plain steps a caller can run one by one and re-enter.
    a thread while the next step runs;
 3. :func:`~ncflow.matcher.place.place` — the target placed on the source and the skeleton's pose searched
    (:class:`~ncflow.matcher.place.Placed`), or taken from an earlier result (:meth:`Placed.of_result`);
-   without a given skeleton it runs before step 2, once per suggested skeleton, and the skeleton whose
-   pose explains the target best is kept (:func:`~ncflow.matcher.place.place_suggested`);
+   without a given skeleton and with ``skeleton_bases = "choose"`` it runs before step 2, once per
+   suggested skeleton, and the skeleton whose pose explains the target best is kept
+   (:func:`~ncflow.matcher.place.place_suggested`);
 4. :func:`~ncflow.matcher.targets.target_measures` — the target's Varifold / Normal Cycles per length scale,
    compressed;
 5. :func:`~ncflow.matcher.train.train` — the flow net F_θ (with the ``fast`` preset a skeleton-driven
