@@ -71,7 +71,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         default="ring",
         help="where a limb's first joint goes: where the limb leaves the body (ring, the default), or for limbs "
         "in pairs (arms, legs, fingers) a limb's radius further in, at a shoulder, hip or knuckle (inside); "
-        "ncflow match without --skeleton tries both and keeps the one whose pose explains its target best",
+        "ncflow match without --skeleton uses ring unless --set skeleton_bases=inside or =choose (both tried, the "
+        "one whose pose explains the target best kept)",
     )
     sug.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     sug.set_defaults(func=run_suggest)

@@ -10,7 +10,8 @@ that are each valid on their own.
 Before them, every mesh passes the intake step (:func:`intake`): a triangle soup or a mesh split at its
 seams is welded, zero-area and duplicate faces are dropped, non-manifold edges and vertices split
 (:mod:`ncflow.geometry.repair`), with one warning; the checks and the match take the repaired meshes.
-:func:`check_inputs` runs the checks; :func:`ncflow.matcher.prepare.prepare` calls both.
+:func:`check_meshes` and :func:`check_skeleton_placement` run the checks; :func:`ncflow.matcher.prepare.prepare`
+calls them all (the skeleton's once per skeleton suggested).
 """
 
 from __future__ import annotations
@@ -249,15 +250,15 @@ def check_skeleton_placement(skel: Skeleton, src: Mesh) -> list[str]:
     return near
 
 
-def check_inputs(src: Mesh, tgt: Mesh, skel: Skeleton) -> tuple[np.ndarray, list[str]]:
-    """Every check of this module: the target's faces wound as the source's, and the warnings
-    (what the mesh readers changed first), in the order a user should read them.
+def check_meshes(src: Mesh, tgt: Mesh) -> tuple[np.ndarray, list[str]]:
+    """The checks of the two meshes: the target's faces wound as the source's, and the warnings (what the
+    mesh readers changed first), in the order a user should read them.
 
     Raises:
-        InputError: a target of another scale, a skeleton far outside the source.
+        InputError: a target of another scale.
     """
     tgt_f, turned = target_faces_like_source(src, tgt)
     meshes = ((src, "source"), (tgt, "target"))
     notes = [f"{m.name or role}: {n}" for m, role in meshes for n in m.notes]
     notes += [w for m, role in meshes for w in check_precision(m, role)]
-    return tgt_f, notes + check_sizes(src, tgt) + turned + check_skeleton_placement(skel, src)
+    return tgt_f, notes + check_sizes(src, tgt) + turned

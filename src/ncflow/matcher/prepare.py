@@ -27,7 +27,14 @@ from ncflow.geometry.normalize import Normalization, fit_normalization
 from ncflow.geometry.overlap import self_overlap
 from ncflow.geometry.repair import Repair
 from ncflow.geometry.topology import Topology, mesh_topology
-from ncflow.matcher.inputs import check_inputs, cloud_surface, cloud_warning, intake, load_inputs
+from ncflow.matcher.inputs import (
+    check_meshes,
+    check_skeleton_placement,
+    cloud_surface,
+    cloud_warning,
+    intake,
+    load_inputs,
+)
 from ncflow.skeleton import Skeleton
 from ncflow.skeleton.checks import bones_partly_outside, flesh_radius, inside_axial_ranges
 from ncflow.skeleton.suggest import BASES, suggest_skeletons
@@ -66,7 +73,8 @@ class Setup:
         centroids: (K, 3) soft-tissue tet centroids of the normalised source ((0, 3) when disabled).
         tissue_info: how the centroids were obtained (cache hit, counts, seconds).
         tissue_seconds: wall time of obtaining the centroids.
-        warnings: what the intake step and :func:`~ncflow.matcher.inputs.check_inputs` found (polygons
+        warnings: what the intake step, :func:`~ncflow.matcher.inputs.check_meshes` and
+            :func:`~ncflow.matcher.inputs.check_skeleton_placement` found (polygons
             split, meshes repaired, a mesh far from the origin, a target of somewhat another size or
             wound the other way, joints slightly outside the source surface).
         skinning_weights: the skeleton-driven field's weight mode and why (:func:`skinning_weight_mode`).
@@ -214,29 +222,30 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Setu
         intake(src, "source", config),
         intake(surface, "target", config),
     )
+    tgt_f, mesh_warnings = check_meshes(src_c, tgt_c)
     bases = BASES if config.skeleton_bases == "choose" else (config.skeleton_bases,)
     found = [(skel, None)] if skel is not None else suggested_skeletons(src_c, message, [tgt_c], bases)
-    norm, work = None, None
-    setups = []
-    for k, (skel, suggested) in enumerate(found):
-        tgt_f, warnings = check_inputs(src_c, tgt_c, skel)
-        warnings = src_note + tgt_note + warnings
+    warned = []
+    for skel, suggested in found:
+        warnings = src_note + tgt_note + mesh_warnings + check_skeleton_placement(skel, src_c)
         if suggested is not None:
             warnings.insert(
                 0,
                 f"no skeleton given: one was suggested from the source ({suggested['n_joints']} joints, "
                 f"{suggested['n_leaves']} limb tips; ncflow skeleton suggest), written as skeleton_source.tgf",
             )
-        shown = message if k == 0 else (lambda text: None)  # an alternative's notes are the chosen one's
-        for w in warnings:
-            shown(f"warning: {w}")
-        if norm is None:
-            norm, work = working_source(src_c, config, message)
-            t0 = time.perf_counter()
-            centroids, tissue_info = source_tissue(work, config, message)
-            tissue_seconds = time.perf_counter() - t0
-            source_topology = mesh_topology(work.faces, work.vertices.shape[0], name=src.name)
-            target_topology = mesh_topology(tgt_f, tgt_c.n_vertices, name=tgt.name)
+        warned.append(warnings)
+    for w in warned[0]:  # an alternative's notes are said if it is chosen (its Setup keeps them)
+        message(f"warning: {w}")
+    norm, work = working_source(src_c, config, message)
+    t0 = time.perf_counter()
+    centroids, tissue_info = source_tissue(work, config, message)
+    tissue_seconds = time.perf_counter() - t0
+    source_topology = mesh_topology(work.faces, work.vertices.shape[0], name=src.name)
+    target_topology = mesh_topology(tgt_f, tgt_c.n_vertices, name=tgt.name)
+    setups = []
+    for k, ((skel, suggested), warnings) in enumerate(zip(found, warned, strict=True)):
+        shown = message if k == 0 else (lambda text: None)
         skel_n = skel.with_positions(norm.apply(skel.positions))
         ranges, inside = inside_axial_ranges(skel_n, work.vertices, work.faces)
         weights = skinning_weight_mode(config, work.vertices, work.faces, tgt_c.vertices, tgt_f, skel_n, ranges)

@@ -61,7 +61,8 @@ node it hangs from (:func:`_base_inward`)."""
 BASES = ("ring", "inside")
 """Where a limb's base joint goes (:func:`suggest_skeleton`): the first ring outside the body, or a radius
 further in for paired limbs. Neither is right on every body (docs/skeleton-suggest.md): ``ncflow match``
-without a skeleton tries both and keeps the one whose pose explains the target best."""
+without a skeleton uses the setting ``skeleton_bases`` ("choose": both tried, the one whose pose explains the
+target best kept)."""
 
 
 @dataclasses.dataclass(frozen=True)
