@@ -8,7 +8,12 @@ Sequences (every frame re-triangulated on its own grid, exact ground truth per f
 * ``cesiumman_walk`` — CesiumMan's walk clip (``../shared/data/gltf``), N times over its 2 s;
 * ``fox_run`` — the Fox's Run clip, N times over its 1.16 s;
 * ``humanoid_move``, ``quadruped_move``, ``hand_move`` — a generated character through three key poses
-  (large flexions), turning 90° and travelling half its diagonal (:func:`ncflow.synthetic.sequences.make_sequence`).
+  (large flexions), turning 90° and travelling half its diagonal (:func:`ncflow.synthetic.sequences.make_sequence`);
+* ``mano_move`` — the MANO hand (``../shared/data/mano``) through three captured poses drawn from the seed,
+  ``mano_fist`` — flat → fist → a captured pose (:func:`ncflow.synthetic.sequences.mano_sequence`), turning 60°;
+* ``humanoid_scan``, ``mano_scan`` — ``humanoid_move`` and ``mano_move`` as a fixed camera sees them
+  (:func:`ncflow.synthetic.scans.scanned_sequence`: single-view meshes with holes, ground truth on the
+  part seen); ``humanoid_cloud`` — the same views as point clouds (``.xyz``, no faces).
 
 Per sequence (``OUT/report.json`` and a table on stdout): per-frame geodesic AUC (τmax 0.20; mean, worst
 frame), drift (mean AUC of the last quarter minus the first quarter's), jitter (the registered source's
@@ -20,6 +25,7 @@ whole sequence, and the speed-up N × first / total (≥ 6: the warm start pays)
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -29,14 +35,39 @@ import numpy as np
 
 from ncflow.evaluate.metrics import auc, geodesic_errors
 from ncflow.io.files import read_npz_arrays
+from ncflow.io.mano import load_mano
 from ncflow.io.meshes import load_mesh
-from ncflow.synthetic.sequences import gltf_sequence, make_sequence, write_sequence
+from ncflow.synthetic.scans import scanned_sequence
+from ncflow.synthetic.sequences import gltf_sequence, make_sequence, mano_sequence, write_sequence
 from ncflow.track import track_sequence
 
 GLTF = Path(__file__).resolve().parents[2] / "shared" / "data" / "gltf"
+MANO = Path(__file__).resolve().parents[2] / "shared" / "data" / "mano" / "mano_right.npz"
+NAMES = [
+    "cesiumman_walk",
+    "fox_run",
+    "humanoid_move",
+    "quadruped_move",
+    "hand_move",
+    "mano_move",
+    "mano_fist",
+    "humanoid_scan",
+    "mano_scan",
+    "humanoid_cloud",
+]
 
 
 def build(name: str, n: int, seed: int):
+    if name.endswith(("_scan", "_cloud")):
+        base = build(name.split("_")[0] + "_move", n, seed)
+        return dataclasses.replace(scanned_sequence(base, seed), name=name.replace("_", "_seq_") + f"_{seed:03d}")
+    if name.startswith("mano_"):
+        model = load_mano(MANO)
+        if name == "mano_fist":
+            poses = ["flat", "fist", int(np.random.default_rng(seed).integers(model.hands_coeffs.shape[0]))]
+        else:
+            poses = [int(p) for p in np.random.default_rng(seed).choice(model.hands_coeffs.shape[0], 3, replace=False)]
+        return mano_sequence(model, poses, n, seed=seed, name=f"{name.replace('_', '_seq_')}_{seed:03d}")
     if name == "cesiumman_walk":
         return gltf_sequence(GLTF / "CesiumMan.glb", np.linspace(0.0, 2.0, n), seed=seed, name=name)
     if name == "fox_run":
@@ -62,8 +93,9 @@ def score(name: str, data: Path, run: Path) -> dict:
             aucs.append(float("nan"))
             continue
         pred = read_npz_arrays(run / "maps" / f"{stem}.npz", ("face", "bary"))
-        gt = read_npz_arrays(data / fr["gt"], ("face", "bary"))
-        e = geodesic_errors(source, pred["face"], pred["bary"], gt["face"], gt["bary"])
+        gt = read_npz_arrays(data / fr["gt"], ("face", "bary"), ("target_index",))
+        seen = gt.get("target_index", np.arange(gt["face"].shape[0]))  # a scan: the points with a truth
+        e = geodesic_errors(source, pred["face"][seen], pred["bary"][seen], gt["face"], gt["bary"])
         aucs.append(auc(e, 0.20))
         registered.append(load_mesh(run / "registered" / f"{stem}.ply").vertices)
     a = np.asarray(aucs)
@@ -92,8 +124,7 @@ def score(name: str, data: Path, run: Path) -> dict:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("out")
-    names = ["cesiumman_walk", "fox_run", "humanoid_move", "quadruped_move", "hand_move"]
-    p.add_argument("--only", nargs="+", choices=names, default=names)
+    p.add_argument("--only", nargs="+", choices=NAMES, default=NAMES)
     p.add_argument("--frames", type=int, default=20)
     p.add_argument("--warm-steps", type=int, default=None)
     p.add_argument("--seed", type=int, default=0)
@@ -103,7 +134,7 @@ def main(argv=None) -> int:
     for name in args.only:
         data, run = out / "data" / name, out / "runs" / name
         if not (data / "sequence.json").is_file():
-            write_sequence(build(name, args.frames, args.seed), data)
+            write_sequence(build(name, args.frames, args.seed), data, frame_format="xyz" if "cloud" in name else None)
         files = json.loads((data / "sequence.json").read_text())
         t0 = time.perf_counter()
         options = {} if args.warm_steps is None else {"warm_steps": args.warm_steps}

@@ -77,3 +77,6 @@ def dot_precisions():
     custom VJPs included), e.g. ``["(Precision.HIGHEST, Precision.HIGHEST)", "None"]``.
     """
     return lambda jaxpr_text: re.findall(r"dot_general\[.*?precision=(\([^)]*\)|None)", jaxpr_text, flags=re.S)
+
+
+from browser_checks import browser  # noqa: E402, F401  (the headless Chromium of the viewer's tests)

@@ -15,7 +15,7 @@ from ncflow.matcher.prepare import prepare
 from ncflow.matcher.programs import build_programs
 from ncflow.matcher.progress import Progress
 from ncflow.matcher.result import build_result
-from ncflow.matcher.steps import run_keys
+from ncflow.matcher.steps import Matcher, WarmStart, run_keys
 from ncflow.matcher.targets import target_measures
 from ncflow.matcher.train import train
 from ncflow.skeleton import Skeleton
@@ -86,6 +86,34 @@ def test_a_match_starts_from_an_earlier_result(pair, config):
     assert np.isfinite(more.deformed_source).all()
     assert np.abs(more.deformed_source - first.deformed_source).max() > 1e-4
     assert Placed.of_result(first).initial_pose is first.state.pose
+
+
+def test_a_short_warm_start_runs_on_the_programs_of_a_full_match(pair, config):
+    """WarmStart(steps, lr) trains the last phase alone on the whole configuration's programs (shared with a
+    full match: nothing compiled again) and ends where a match of a one-phase configuration of that phase
+    ends, to float32 rounding (the two steps are programs of different data-term sets, compiled apart)."""
+    src, tgt, skel = pair
+    config = dataclasses.replace(config, flow=dataclasses.replace(config.flow, skinning_weights="current"))
+    full = Matcher(src, tgt, skel, config, quiet=True)
+    first = full.run()
+    bent = Mesh(bend(src.vertices, 60.0), src.faces, "t2")
+    steps, lr = 5, 2e-3
+    start = WarmStart(first.state, first.placement, steps, lr)
+    warm = Matcher(src, bent, skel, config, quiet=True, start=start, programs=full.programs)
+    assert warm.programs is full.programs and [st.phase for st in warm.stages] == [len(config.phases) - 1] * len(
+        warm.stages
+    )
+    assert sum(st.steps for st in warm.stages) == steps
+    short = warm.run()
+    last = config.phases[-1]
+    phase = dataclasses.replace(last, name="warm", steps=steps, lr=min(lr, last.lr), warmup=min(last.warmup, 1))
+    one_phase = dataclasses.replace(config, phases=(phase,))
+    own = ncflow.match(src, bent, skel, one_phase, quiet=True, start=WarmStart(first.state, first.placement))
+    np.testing.assert_allclose(short.deformed_source, own.deformed_source, atol=1e-5)
+    np.testing.assert_array_equal(short.maps["map_face"], own.maps["map_face"])
+    assert short.metrics["phases"][-1]["data"] == pytest.approx(own.metrics["phases"][-1]["data"], rel=1e-4)
+    assert np.abs(short.deformed_source - first.deformed_source).max() > 1e-3  # it trained
+    assert short.frames.shape[0] == config.frames  # the configuration's output frames
 
 
 def _fake_placed(setup, score: float) -> Placed:

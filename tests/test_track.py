@@ -13,6 +13,7 @@ import pygltflib
 import pytest
 from scipy.spatial.transform import Rotation
 
+from browser_checks import Page, browser_test
 from gltf_checks import accessor, assert_valid_gltf
 from ncflow.cli import main
 from ncflow.config import apply_overrides, preset, scale_steps
@@ -25,6 +26,7 @@ from ncflow.io.meshes import load_mesh
 from ncflow.synthetic.sequences import make_sequence, write_sequence
 from ncflow.track import frame_files, track_sequence
 from ncflow.track.frames import natural_key
+from ncflow.view.page import decode_array
 from tiny import TINY
 
 N_SMOOTH = 4  # frames 0-3 move smoothly; frame 4 is broken, frame 5 a jump
@@ -241,10 +243,10 @@ def test_cli_refuses_bad_options_in_one_line(track, tmp_path, capsys):
     assert not (tmp_path / "o").exists()
 
 
-def test_rig_writer_refuses_bad_morph_targets(tmp_path):
-    v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
-    common = dict(
-        vertices=v,
+def _triangle_rig() -> dict:
+    """The arguments of write_rig_glb for one triangle bound to one joint."""
+    return dict(
+        vertices=np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]),
         faces=np.array([[0, 1, 2]]),
         joint_positions=np.zeros((1, 3)),
         parents=np.array([-1]),
@@ -252,6 +254,10 @@ def test_rig_writer_refuses_bad_morph_targets(tmp_path):
         joints=np.zeros((3, 4), int),
         weights=np.tile([1.0, 0, 0, 0], (3, 1)),
     )
+
+
+def test_rig_writer_refuses_bad_morph_targets(tmp_path):
+    common = _triangle_rig()
     anim = dict(
         key_times=np.array([0.0, 1.0]), rotations=np.tile([0, 0, 0, 1.0], (2, 1, 1)), root_translations=np.zeros((2, 3))
     )
@@ -278,6 +284,79 @@ def test_view_plays_the_registered_frames(track, tmp_path):
     last = load_mesh(out / "registered" / f"{seq.stems[-1]}.ply").vertices
     np.testing.assert_allclose(frames[-1], last, atol=1e-4 * span)
     assert main(["view", str(out), "--out", str(tmp_path / "b.html"), "--gt", "identity"]) == 2
+
+
+@browser_test
+def test_view_plays_animation_glb_in_chromium(track, browser, tmp_path):
+    """The page of a track plays animation.glb as three.js's GLTFLoader and AnimationMixer pose it: at every
+    key the skinned, morphed mesh is the registered frame (within 1e-4 of the diagonal: float32); between
+    two keys it is the clip's pose (skeleton slerped, corrections blended), not the frames' straight blend,
+    which the page shows again with the animation switched off."""
+    from test_view import _page_data
+
+    out = track["out"]
+    page_file = tmp_path / "track.html"
+    assert main(["view", str(out), "--out", str(page_file)]) == 0
+    data = _page_data(page_file)
+    stems = [f["stem"] for f in json.loads((out / "metrics.json").read_text())["frames"] if f["status"] == "ok"]
+    assert data["animation"]["keys"] == list(range(-1, len(stems)))
+    kept = decode_array(data["source"]["kept"])
+    registered = [load_mesh(out / "registered" / f"{s}.ply").vertices[kept] for s in stems]
+    diag = float(np.linalg.norm(np.ptp(registered[0], axis=0)))
+    view = Page(browser, page_file)
+    try:
+        times = view.page.evaluate("window.ncflowViewer.times")
+
+        def shown(t):
+            view.page.evaluate(f"window.ncflowViewer.setTime({t})")
+            return np.asarray(view.page.evaluate("window.ncflowViewer.flowPositions()")).reshape(-1, 3)
+
+        assert view.page.is_checked("#ncv-glb")
+        for k, reg in enumerate(registered):
+            assert np.abs(shown(times[k + 1]) - reg).max() < 1e-4 * diag
+        middle = shown(0.5 * (times[1] + times[2]))
+        blend = 0.5 * (registered[0] + registered[1])
+        assert np.abs(middle - blend).max() > 1e-3 * diag  # the clip's pose, not the straight blend
+        assert np.abs(middle - blend).max() < 0.1 * diag
+        assert view.page.evaluate("window.ncflowViewer.setAnimation(false)") is False
+        assert np.abs(shown(0.5 * (times[1] + times[2])) - blend).max() < 1e-4 * diag  # uint16 frames
+        assert view.errors == [] and view.requests == [view.url]
+    finally:
+        view.page.close()
+
+
+def test_view_keys_follow_the_frames_shown(track, tmp_path):
+    """With fewer frames shown than tracked, each shown frame names its own clip key (the rest pose none)."""
+    from test_view import _page_data
+
+    out = track["out"]
+    n_good = json.loads((out / "metrics.json").read_text())["n_ok"]
+    assert main(["view", str(out), "--out", str(tmp_path / "v.html"), "--max-frames", "3"]) == 0
+    keys = _page_data(tmp_path / "v.html")["animation"]["keys"]
+    assert len(keys) == 3 and keys[0] == -1 and keys[-1] == n_good - 1 and keys == sorted(set(keys))
+
+
+@pytest.mark.filterwarnings("ignore:pygltflib does not support")
+def test_view_refuses_a_broken_animation_glb(track, tmp_path, capsys):
+    """An animation.glb that is not a skin of the source with one key per good frame: one line naming it, no
+    page."""
+    out = tmp_path / "t"
+    shutil.copytree(track["out"], out)
+    glb = out / "animation.glb"
+    good = glb.read_bytes()
+    capsys.readouterr()
+    for broken in (b"glTF" + bytes(40), (track["root"] / "rig.glb")):
+        if isinstance(broken, bytes):
+            glb.write_bytes(broken)
+        else:  # a valid GLB of another mesh: one triangle
+            write_rig_glb(broken, **_triangle_rig())
+            glb.write_bytes(broken.read_bytes())
+        assert main(["view", str(out), "--out", str(tmp_path / "v.html")]) == 2
+        err = capsys.readouterr().err
+        assert "animation.glb" in err and err.count("\n") == 1, err
+        assert not (tmp_path / "v.html").exists()
+    glb.write_bytes(good)
+    assert main(["view", str(out), "--out", str(tmp_path / "v.html")]) == 0
 
 
 def test_generated_sequence_has_exact_ground_truth(track):

@@ -1,15 +1,12 @@
 #!/bin/sh
-# Bundle the viewer (src/main.js + three.js) into the one minified script that the Python package
-# ships: ../src/ncflow/view/assets/viewer.js, plus three.js's licence beside it.
+# Bundle the viewer (src/main.js + three.js with its glTF loader) into the one minified script that the
+# Python package ships: ../src/ncflow/view/assets/viewer.js, plus three.js's licence beside it.
 # Run from this folder after `npm ci` (pinned versions in package-lock.json): `npm run build`.
 set -eu
 cd "$(dirname "$0")"
 ASSETS=../src/ncflow/view/assets
 mkdir -p "$ASSETS"
-./node_modules/.bin/esbuild src/main.js \
-  --bundle --minify --format=iife --target=es2020 --platform=browser \
-  --legal-comments=eof --charset=ascii --log-level=warning \
-  --outfile="$ASSETS/viewer.js"
+node build.mjs "$ASSETS/viewer.js"  # esbuild, three.js's fetch calls rewritten (see build.mjs)
 THREE_VERSION=$(node -p "require('./node_modules/three/package.json').version")
 {
   echo "Third-party software bundled in viewer.js (the page script of \`ncflow view\`)"

@@ -6,16 +6,22 @@
 // source animated, target) or one overlay panel, a timeline, play/pause, skeleton and colour-mode
 // switches, and a colour bar for the geodesic error. It never touches the network.
 //
+// A page of `ncflow track` may hold the track's animation.glb (data.animation): the flowed source then
+// plays the GLB's clip — skin and morph targets, evaluated by three.js's own GLTFLoader and
+// AnimationMixer on the CPU — between the frames that are its keys, as a glTF viewer plays it.
+//
 // Test hook: window.ncflowViewer = {ready, setTime, getTime, setMode, setSkeleton, setOverlay,
-// renders, error}. URL hash: #t=0.5&mode=checker&overlay=1&skeleton=0.
+// setAnimation, flowPositions, renders, error}. URL hash: #t=0.5&mode=checker&overlay=1&skeleton=0&glb=0.
 
 import {
+  AnimationMixer,
   BufferAttribute,
   BufferGeometry,
   DoubleSide,
   DynamicDrawUsage,
   LineBasicMaterial,
   LineSegments,
+  LoopOnce,
   Mesh,
   PerspectiveCamera,
   Points,
@@ -26,6 +32,10 @@ import {
   WebGLRenderer,
 } from "three";
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
+import { GLTFLoader } from "three/addons/loaders/GLTFLoader.js";
+
+// what three.js's loaders call instead of fetch (build.mjs rewrites their calls): the page requests nothing
+globalThis.ncflowNoNetwork = () => Promise.reject(new Error("ncflow view makes no network request"));
 
 const MODES = { position: 0, checker: 1, error: 2 };
 const PLAY_SECONDS = 3.0; // one sweep of the timeline
@@ -304,6 +314,13 @@ function buildDom(data) {
   const ovLabel = element("label", {}, bar);
   const overlay = element("input", { id: "ncv-overlay", type: "checkbox" }, ovLabel);
   ovLabel.append(" overlay");
+  let glb = null;
+  if (data.animation) {
+    const glbLabel = element("label", { title: "play animation.glb (skin and morph targets) between its keys" }, bar);
+    glb = element("input", { id: "ncv-glb", type: "checkbox" }, glbLabel);
+    glb.checked = true;
+    glbLabel.append(" animation.glb");
+  }
   const modeLabel = element("label", { text: "colour " }, bar);
   const mode = element("select", { id: "ncv-mode" }, modeLabel);
   element("option", { value: "position", text: "position" }, mode);
@@ -338,7 +355,7 @@ function buildDom(data) {
     nodata.append("no ground truth");
     if (cb.summary) element("div", { text: cb.summary }, colorbar);
   }
-  return { stage, canvas, labels, colorbar, play, time, readout, skeleton, overlay, mode };
+  return { stage, canvas, labels, colorbar, play, time, readout, skeleton, overlay, mode, glb };
 }
 
 async function start() {
@@ -420,6 +437,8 @@ async function start() {
     };
   }
 
+  const animation = data.animation ? await loadAnimation(data.animation, await decodeArray(src.kept), nFrames) : null;
+
   const renderer = new WebGLRenderer({ canvas: ui.canvas, antialias: true, preserveDrawingBuffer: true });
   renderer.setPixelRatio(pixelRatio);
   renderer.setClearColor(0x1b1d23, 1);
@@ -439,7 +458,14 @@ async function start() {
   controls.target.copy(centre);
   controls.update();
 
-  const state = { t: times[0], mode: "position", skeleton: !!data.skeleton, overlay: false, playing: false };
+  const state = {
+    t: times[0],
+    mode: "position",
+    skeleton: !!data.skeleton,
+    overlay: false,
+    playing: false,
+    glb: !!animation,
+  };
   const hook = { ready: false, renders: 0, error: null };
 
   function panels() {
@@ -513,7 +539,12 @@ async function start() {
     const j = Math.min(i + 1, nFrames - 1);
     const f0 = i * nv * 3;
     const f1 = j * nv * 3;
-    for (let q = 0; q < nv * 3; q++) flowPos[q] = frames[f0 + q] + a * (frames[f1 + q] - frames[f0 + q]);
+    if (state.glb && animation && animation.keys[i] >= 0 && animation.keys[j] >= 0) {
+      const k0 = animation.keyTimes[animation.keys[i]];
+      animation.positionsAt(k0 + a * (animation.keyTimes[animation.keys[j]] - k0), flowPos);
+    } else {
+      for (let q = 0; q < nv * 3; q++) flowPos[q] = frames[f0 + q] + a * (frames[f1 + q] - frames[f0 + q]);
+    }
     flowGeom.attributes.position.needsUpdate = true;
     flowGeom.computeVertexNormals();
     if (skeleton) skeleton.update(i, a);
@@ -547,6 +578,12 @@ async function start() {
     layoutLabels();
   }
 
+  function applyAnimation(on) {
+    state.glb = !!on && !!animation;
+    if (ui.glb) ui.glb.checked = state.glb;
+    applyTime(state.t);
+  }
+
   function setPlaying(on) {
     state.playing = !!on;
     ui.play.textContent = state.playing ? "Pause" : "Play";
@@ -577,6 +614,7 @@ async function start() {
     if (params.has("mode")) applyMode(params.get("mode"));
     if (params.has("skeleton")) applySkeleton(params.get("skeleton") !== "0");
     if (params.has("overlay")) applyOverlay(params.get("overlay") !== "0");
+    if (params.has("glb")) applyAnimation(params.get("glb") !== "0");
   }
 
   ui.time.addEventListener("input", () => {
@@ -593,6 +631,12 @@ async function start() {
     applyOverlay(ui.overlay.checked);
     requestRender();
   });
+  if (ui.glb) {
+    ui.glb.addEventListener("change", () => {
+      applyAnimation(ui.glb.checked);
+      requestRender();
+    });
+  }
   ui.mode.addEventListener("change", () => {
     applyMode(ui.mode.value);
     requestRender();
@@ -651,11 +695,56 @@ async function start() {
       applyOverlay(on);
       render();
     },
+    setAnimation(on) {
+      applyAnimation(on);
+      render();
+      return state.glb;
+    },
+    flowPositions: () => Array.from(flowPos),
     play: () => setPlaying(true),
     pause: () => setPlaying(false),
     state: () => ({ ...state }),
   });
   return hook;
+}
+
+// animation.glb in three.js: its skinned mesh, posed by the clip at a time, read back vertex by vertex
+// (SkinnedMesh.getVertexPosition: morph targets, then the bones) for the page's kept vertices
+async function loadAnimation(spec, kept, nFrames) {
+  if (spec.keys.length !== nFrames) throw new Error("the animation's keys do not match the frames");
+  const bytes = await decodeArray(spec.glb);
+  const gltf = await new GLTFLoader().parseAsync(bytes.buffer.slice(bytes.byteOffset, bytes.byteOffset + bytes.byteLength), "");
+  let skinned = null;
+  gltf.scene.traverse((o) => {
+    if (o.isSkinnedMesh && !skinned) skinned = o;
+  });
+  if (!skinned || !gltf.animations.length) throw new Error("animation.glb has no skinned mesh or no clip");
+  const clip = gltf.animations[0];
+  const keyTimes = Array.from(clip.tracks[0].times);
+  if (spec.keys.some((k) => k >= keyTimes.length)) throw new Error("animation.glb has fewer keys than the track");
+  const mixer = new AnimationMixer(gltf.scene);
+  const action = mixer.clipAction(clip);
+  action.setLoop(LoopOnce, 1);
+  action.clampWhenFinished = true;
+  action.play();
+  const v = new Vector3();
+  return {
+    keys: spec.keys,
+    keyTimes,
+    positionsAt(t, out) {
+      action.time = Math.min(Math.max(t, 0), clip.duration);
+      action.enabled = true;
+      action.paused = false;
+      mixer.update(0);
+      gltf.scene.updateMatrixWorld(true);
+      for (let q = 0; q < kept.length; q++) {
+        skinned.getVertexPosition(kept[q], v).applyMatrix4(skinned.matrixWorld);
+        out[3 * q] = v.x;
+        out[3 * q + 1] = v.y;
+        out[3 * q + 2] = v.z;
+      }
+    },
+  };
 }
 
 function showError(err) {

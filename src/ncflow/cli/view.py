@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ncflow.cli.options import MiB, check_int, gt_spec, output_file
     from ncflow.errors import InputError
-    from ncflow.track.folder import is_track_folder, track_as_result
+    from ncflow.track.folder import is_track_folder, track_animation, track_as_result
     from ncflow.view.page import (
         DEFAULT_MAX_DISPLAY_FRAMES,
         DEFAULT_MAX_DISPLAY_VERTICES,
@@ -75,9 +75,11 @@ def run(args: argparse.Namespace) -> int:
     if is_track_folder(args.result_dir):  # a sequence of ncflow track: its registered frames, played
         if args.gt or args.target:
             raise InputError("--gt and --target are for a match result, not a track folder", args.result_dir)
+        result = track_as_result(args.result_dir)
         path = write_page(
-            track_as_result(args.result_dir),
+            result,
             out,
+            animation=track_animation(args.result_dir, result),
             max_display_vertices=args.max_vertices or DEFAULT_MAX_DISPLAY_VERTICES,
             max_display_frames=args.max_frames or DEFAULT_MAX_DISPLAY_FRAMES,
             title=args.title if args.title is not None else Path(args.result_dir).resolve().name,

@@ -37,6 +37,24 @@ def build_stages(config: Config) -> list[Stage]:
     return stages
 
 
+def last_phase_stages(config: Config, steps: int, lr: float | None = None) -> list[Stage]:
+    """The stages of ``config``'s last phase alone, shortened to ``steps`` steps at peak rate at most ``lr``
+    (None: the phase's; warm-up at most a fifth of them), named "warm": a warm start's short training on
+    the programs of the whole configuration (the stages keep the phase's index).
+    """
+    last = len(config.phases) - 1
+    p = config.phases[last]
+    phase = dataclasses.replace(
+        p,
+        name="warm",
+        steps=int(steps),
+        lr=p.lr if lr is None else min(float(lr), p.lr),
+        warmup=min(p.warmup, max(0, int(steps) // 5)),
+    )
+    short = build_stages(dataclasses.replace(config, phases=(phase,)))
+    return [dataclasses.replace(st, phase=last) for st in short]
+
+
 def phase_schedule(p: PhaseConfig) -> Callable[[int], float]:
     """Learning rate at step s of phase ``p`` (a Python float)."""
     if p.lr_end is None:

@@ -38,8 +38,9 @@ from ncflow.matcher.programs import Programs, build_programs, check_programs
 from ncflow.matcher.progress import Progress
 from ncflow.matcher.result import MatchResult
 from ncflow.matcher.result import build_result as build_result
-from ncflow.matcher.targets import target_measures
-from ncflow.matcher.train import TrainingError, TrainState, train
+from ncflow.matcher.stages import build_stages, last_phase_stages
+from ncflow.matcher.targets import target_measures, target_stand_ins
+from ncflow.matcher.train import TrainingError, TrainState, stage_placeholders, train
 
 __all__ = ["Matcher", "MatchResult", "TrainingError", "WarmStart", "match", "run_keys"]
 
@@ -48,11 +49,15 @@ __all__ = ["Matcher", "MatchResult", "TrainingError", "WarmStart", "match", "run
 class WarmStart:
     """What a match may start from besides a whole earlier result: a trained state and the placement of
     the new target (``ncflow track`` hands each frame the previous frame's state and a placement followed
-    onto the new frame).
+    onto the new frame), and optionally a short training: the configuration's last phase alone, ``steps``
+    steps at peak rate at most ``lr`` (:func:`~ncflow.matcher.stages.last_phase_stages`). The programs are
+    still the whole configuration's, so a warm match can run on the programs of a full one.
     """
 
     state: TrainState
     placement: Placement
+    steps: int | None = None
+    lr: float | None = None
 
 
 def run_keys(seed: int) -> tuple:
@@ -109,6 +114,7 @@ class Matcher:
     Attributes:
         config: the validated configuration.
         setup, programs, placed, targets: what steps 1–4 made.
+        stages: the stages trained (the configuration's, or a short warm start's last phase).
         timings: their seconds (``setup``, ``placement``, ``tissue``, ``pose_search``, ``target``).
     """
 
@@ -127,9 +133,11 @@ class Matcher:
         t0 = time.perf_counter()
         self.config = validate_config(config or preset("fast"))
         apply_runtime_settings(self.config)
-        self.progress = Progress(self.config.total_steps, quiet, stream)
         self.keys = run_keys(self.config.seed)  # initialisation, training, outputs
         self.start = start
+        short = isinstance(start, WarmStart) and start.steps is not None
+        self.stages = last_phase_stages(self.config, start.steps, start.lr) if short else build_stages(self.config)
+        self.progress = Progress(sum(st.steps for st in self.stages), quiet, stream)
         self.setup = prepare(source, target, skeleton, self.config, message=self.progress.message)
         placed = None
         if start is not None:
@@ -148,8 +156,7 @@ class Matcher:
             "pose_search": self.placed.pose_search_seconds,
         }
         t1 = time.perf_counter()
-        stages = list(self.programs.stages)
-        self.targets = target_measures(self.setup, self.placed, stages, self.config, message=self.progress.message)
+        self.targets = target_measures(self.setup, self.placed, self.stages, self.config, message=self.progress.message)
         self.timings["target"] = time.perf_counter() - t1
         self.timings["setup"] = time.perf_counter() - t0
 
@@ -164,12 +171,15 @@ class Matcher:
             programs.training,
             programs.arrays.skeleton,
             self.targets,
-            list(programs.stages),
+            list(self.stages),
             cfg,
             (k_init, k_train),
             self.progress,
             self.placed.initial_pose,
             start=None if self.start is None else self.start.state,
+            placeholders=stage_placeholders(
+                list(programs.stages), target_stand_ins(self.setup, list(programs.stages), cfg)
+            ),
         )
         train_seconds = time.perf_counter() - t_train
         timings = dict(self.timings, train=train_seconds, per_step=train_seconds / max(trained.steps, 1))

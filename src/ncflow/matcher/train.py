@@ -288,12 +288,16 @@ def train(
     progress: Progress,
     initial_pose: Pose | None = None,
     start: TrainState | None = None,
+    placeholders: dict | None = None,
 ) -> Trained:
     """Run every stage of ``stages`` with ``programs`` (:func:`training_programs`, perhaps compiled ahead).
 
     ``initial_pose`` (from :mod:`ncflow.matcher.pose_search`) starts the skeleton-driven field and the
     per-step pose fit; default the rest pose. ``start``: the state of an earlier training to go on
     from (a warm start; ``initial_pose`` is then not used). ``key``: (initialisation, training) keys.
+    ``placeholders``: per metric of the step, a target of its shape for the slots of metrics no stage of
+    ``stages`` reads (:func:`stage_placeholders`; needed when ``stages`` are some of those the step was
+    built for). The multipliers' rate ramps over the steps of ``stages``.
 
     Raises:
         TrainingError: a non-finite loss or non-finite trained parameters.
@@ -303,7 +307,8 @@ def train(
     params, pose, opt_state, mult = initial_state(programs, skeleton, k_init, initial_pose, start)
     metrics = programs.settings.metrics
     step = programs.step
-    placeholders = stage_placeholders(stages, targets)
+    placeholders = {**(placeholders or {}), **stage_placeholders(stages, targets)}
+    total = sum(st.steps for st in stages)
     held = held_phases(cfg, programs.weight_mode)
     history = []
     done = 0
@@ -330,7 +335,7 @@ def train(
                 cw,
                 pose_rate,
                 lr,
-                jnp.asarray(done / cfg.total_steps, DTYPE),
+                jnp.asarray(done / total, DTYPE),
                 jax.random.fold_in(k_train, done),
             )
             done += 1

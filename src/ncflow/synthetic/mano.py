@@ -226,7 +226,8 @@ def mano_forward(
     return verts, world_t
 
 
-def _mano_skeleton(model: ManoModel, joints: np.ndarray, verts: np.ndarray, tips: Sequence[int], name: str) -> Skeleton:
+def mano_skeleton(model: ManoModel, joints: np.ndarray, verts: np.ndarray, tips: Sequence[int], name: str) -> Skeleton:
+    """MANO's 16 ``joints`` and one tip bone per finger ending at the vertex ``tips`` of ``verts``."""
     nj = model.n_joints
     tips = [int(t) for t in tips]
     if any(not 0 <= t < verts.shape[0] for t in tips):
@@ -313,7 +314,7 @@ def mano_pair(
     label = lambda p: str(int(p)) if isinstance(p, (int, np.integer)) else p if isinstance(p, str) else "custom"  # noqa: E731
     name = name or f"mano_{label(pose_a)}_{label(pose_b)}"
     source = Mesh(vertices=va, faces=model.faces, name=f"{name}/source", file_index=np.arange(va.shape[0]))
-    skeleton = _mano_skeleton(model, ja, va, tip_vertices, name)
+    skeleton = mano_skeleton(model, ja, va, tip_vertices, name)
     target_joints = np.concatenate([jb, vb[[int(t) for t in tip_vertices]]])[skeleton.file_index]
     info = {
         "model": model.name,

@@ -38,10 +38,11 @@ from ncflow.skeleton.kinematics import Pose
 from ncflow.synthetic.articulations import articulate
 from ncflow.synthetic.characters import make_character, pose_character, random_pose
 from ncflow.synthetic.gltf import gltf_pair
+from ncflow.synthetic.mano import MANO_TIP_VERTICES, mano_finger_pose, mano_forward, mano_skeleton
 from ncflow.synthetic.motion import _pair_seed
-from ncflow.synthetic.pairs import _ground_truth
+from ncflow.synthetic.pairs import _ground_truth, identity_ground_truth, retriangulated_target
 
-__all__ = ["Sequence", "blend_poses", "gltf_sequence", "make_sequence", "write_sequence"]
+__all__ = ["Sequence", "blend_poses", "gltf_sequence", "make_sequence", "mano_sequence", "write_sequence"]
 
 MAX_FRAMES = 10_000
 
@@ -195,6 +196,92 @@ def make_sequence(
     return Sequence(name, source, ch.skeleton, tuple(frames), tuple(truths), np.stack(joints), np.stack(moved), info)
 
 
+def _blend_rotvecs(a: np.ndarray, b: np.ndarray, s: float) -> np.ndarray:
+    """(K, 3) axis-angle rotations a fraction ``s`` of the way from ``a`` to ``b``, each slerped."""
+    ra, rb = Rotation.from_rotvec(a), Rotation.from_rotvec(b)
+    return (ra * Rotation.from_rotvec(float(s) * (ra.inv() * rb).as_rotvec())).as_rotvec()
+
+
+def mano_sequence(
+    model,
+    poses: Sequence_[int | str],
+    n_frames: int = 12,
+    *,
+    seed: int = 0,
+    turn: float = 60.0,
+    travel: float = 0.3,
+    target_resolution: float = 36.0,
+    retriangulate: bool = True,
+    name: str | None = None,
+) -> Sequence:
+    """The MANO hand moving through captured key poses (rows of ``hands_coeffs``, or ``"flat"`` / ``"fist"``),
+    every frame retriangulated on its own grid (:func:`ncflow.synthetic.pairs.retriangulated_target`, seed
+    ``seed + k``) with exact ground truth.
+
+    Each finger joint's rotation is slerped from key to key (smoothstep in time, equal time per segment,
+    MANO's pose blend shapes applied at every frame); the wrist turns by ``turn`` degrees about a seeded
+    axis and the hand travels ``travel`` × its bounding-box diagonal. The source is the first key pose
+    with MANO's skeleton and tip bones (as :func:`ncflow.synthetic.mano.mano_pair` makes it).
+
+    Args:
+        model: a :class:`ncflow.io.mano.ManoModel` (the user's MANO file, loaded).
+        poses: two or more key poses (:func:`ncflow.synthetic.mano.mano_finger_pose`).
+        n_frames: N ≥ 2.
+        seed: the turn's axis, the path's direction and the frames' grids are drawn from it.
+        turn: the wrist's turn over the sequence, degrees.
+        travel: the distance travelled, × the bounding-box diagonal.
+        target_resolution: cells of each frame's retriangulation grid along the hand's largest extent.
+        retriangulate: False: every frame is the posed MANO mesh itself (identity ground truth).
+        name: the frames' stem prefix (default ``mano_seq_<first>_<last>``).
+    """
+    if not 2 <= int(n_frames) <= MAX_FRAMES:
+        raise InputError(f"a sequence needs 2 to {MAX_FRAMES} frames, got {n_frames}")
+    if len(poses) < 2:
+        raise InputError(f"a MANO sequence needs at least two key poses, got {len(poses)}")
+    keys = [mano_finger_pose(model, p).reshape(-1, 3) for p in poses]
+    name = name or f"mano_seq_{poses[0]}_{poses[-1]}"
+    rng = np.random.default_rng(_pair_seed(seed, 21))
+    axis, direction = rng.normal(size=3), rng.normal(size=3)
+    axis, direction = axis / np.linalg.norm(axis), direction / np.linalg.norm(direction)
+    v0, j0 = mano_forward(model, keys[0].reshape(-1))
+    skeleton = mano_skeleton(model, j0, v0, MANO_TIP_VERTICES, name)
+    rest_v, _ = mano_forward(model, np.zeros(3 * (model.n_joints - 1)))
+    diag = float(np.linalg.norm(np.ptp(v0, axis=0)))
+    n_seg = len(keys) - 1
+    frames, truths, joints, moved = [], [], [], []
+    for k in range(int(n_frames)):
+        t = k / (n_frames - 1)
+        seg = min(int(t * n_seg), n_seg - 1)
+        theta = _blend_rotvecs(keys[seg], keys[seg + 1], _smoothstep(t * n_seg - seg))
+        verts, js = mano_forward(
+            model, theta.reshape(-1), np.radians(turn * t) * axis, translation=travel * t * diag * direction
+        )
+        stem = f"{name}_{k:03d}"
+        if retriangulate:
+            tv, tf, gt = retriangulated_target(rest_v, model.faces, verts, target_resolution, seed + k, stem)
+        else:
+            tv, tf = verts, model.faces
+            gt = identity_ground_truth(Mesh(verts, model.faces, stem), stem)
+        frames.append(Mesh(tv, np.asarray(tf, np.int64), stem, np.arange(tv.shape[0])))
+        truths.append(gt)
+        joints.append(np.concatenate([js, verts[list(MANO_TIP_VERTICES)]])[skeleton.file_index])
+        moved.append(verts)
+    source = Mesh(v0, model.faces, f"{name}/source", np.arange(v0.shape[0]))
+    info = {
+        "kind": "mano",
+        "model": model.name,
+        "poses": [p if isinstance(p, str) else int(p) for p in poses],
+        "seed": int(seed),
+        "n_frames": int(n_frames),
+        "turn_degrees": float(turn),
+        "travel_diagonals": float(travel),
+        "target_resolution": float(target_resolution) if retriangulate else None,
+        "n_source": int(v0.shape[0]),
+        "n_target": [int(m.n_vertices) for m in frames],
+    }
+    return Sequence(name, source, skeleton, tuple(frames), tuple(truths), np.stack(joints), np.stack(moved), info)
+
+
 def gltf_sequence(
     path: str | os.PathLike,
     times: Sequence_[float],
@@ -236,21 +323,28 @@ def gltf_sequence(
     return Sequence(name, source, pair.skeleton, tuple(frames), tuple(truths), np.stack(joints), moved, info)
 
 
-def write_sequence(seq: Sequence, directory: str | os.PathLike, fmt: str = "ply") -> dict:
-    """Write a sequence: ``source.FMT``, ``skeleton.tgf``, ``frames/STEM.FMT``, ``gt/STEM.npz`` (face,
-    bary), ``joints.npy`` (N, J, 3), ``source_frames.npy`` (N, V, 3) and ``sequence.json`` (its info and
-    the files). Returns that record (file names relative to ``directory``).
+def write_sequence(
+    seq: Sequence, directory: str | os.PathLike, fmt: str = "ply", frame_format: str | None = None
+) -> dict:
+    """Write a sequence: ``source.FMT``, ``skeleton.tgf``, ``frames/STEM.FRAME_FORMAT`` (default ``fmt``;
+    ``"xyz"``: the frames' vertices alone, as a scanner's point clouds), ``gt/STEM.npz`` (face, bary,
+    target_index), ``joints.npy`` (N, J, 3), ``source_frames.npy`` (N, V, 3) and ``sequence.json`` (its
+    info and the files). Returns that record (file names relative to ``directory``).
     """
     out = Path(directory)
+    frame_format = frame_format or fmt
     (out / "frames").mkdir(parents=True, exist_ok=True)
     (out / "gt").mkdir(exist_ok=True)
     save_mesh(out / f"source.{fmt}", seq.source.vertices, seq.source.faces, precision="float64")
     save_skeleton(out / "skeleton.tgf", seq.skeleton)
     frames = []
     for stem, mesh, gt in zip(seq.stems, seq.frames, seq.ground_truth):
-        save_mesh(out / "frames" / f"{stem}.{fmt}", mesh.vertices, mesh.faces, precision="float64")
+        if frame_format == "xyz":
+            np.savetxt(out / "frames" / f"{stem}.xyz", mesh.vertices, fmt="%.17g")
+        else:
+            save_mesh(out / "frames" / f"{stem}.{frame_format}", mesh.vertices, mesh.faces, precision="float64")
         save_ground_truth(out / "gt" / f"{stem}.npz", gt)
-        frames.append({"stem": stem, "mesh": f"frames/{stem}.{fmt}", "gt": f"gt/{stem}.npz"})
+        frames.append({"stem": stem, "mesh": f"frames/{stem}.{frame_format}", "gt": f"gt/{stem}.npz"})
     np.save(out / "joints.npy", seq.joints)
     np.save(out / "source_frames.npy", seq.source_frames)
     record = {

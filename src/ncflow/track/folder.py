@@ -22,7 +22,10 @@ from ncflow.io.points import load_target
 from ncflow.io.result import ResultFolder
 from ncflow.skeleton import Skeleton
 
-__all__ = ["is_track_folder", "track_as_result"]
+__all__ = ["MAX_ANIMATION_BYTES", "is_track_folder", "track_animation", "track_as_result"]
+
+MAX_ANIMATION_BYTES = 256 * 2**20
+"""``animation.glb`` files above this size are not embedded in a page (a page that size would not open)."""
 
 
 def is_track_folder(path: str | os.PathLike) -> bool:
@@ -94,3 +97,29 @@ def track_as_result(path: str | os.PathLike) -> ResultFolder:
         target_vertices=target.vertices,
         target_faces=target.faces,
     )
+
+
+def track_animation(path: str | os.PathLike, result: ResultFolder) -> tuple[bytes, np.ndarray] | None:
+    """(``animation.glb``'s bytes, per frame of ``result`` (:func:`track_as_result`) the clip key it shows:
+    −1 for the rest pose, then 0, 1, …) for the page to play, or None when the folder has no animation.
+    The GLB is read by ncflow's hardened glTF reader first: it must be a skin of the source's vertices
+    with a clip of one key per good frame.
+
+    Raises:
+        InputError: an ``animation.glb`` that is not that (one line naming it), or over
+            :data:`MAX_ANIMATION_BYTES`.
+    """
+    from ncflow.io.gltf.skins import load_gltf_skin
+
+    glb = Path(path) / "animation.glb"
+    if not glb.is_file():
+        return None
+    if glb.stat().st_size > MAX_ANIMATION_BYTES:
+        raise InputError(f"is over {MAX_ANIMATION_BYTES // 2**20} MiB: too large to embed in a page", glb)
+    rig = load_gltf_skin(glb)
+    n_keys = result.frames.shape[0] - 1
+    if rig.positions is None or rig.positions.shape[0] != result.frames.shape[1]:
+        raise InputError("is not a skin of the track's source (another vertex count)", glb)
+    if not rig.channels or any(c.times.shape[0] != n_keys for c in rig.channels[0]):
+        raise InputError(f"has no clip of {n_keys} keys, one per good frame", glb)
+    return glb.read_bytes(), np.arange(-1, n_keys)

@@ -52,12 +52,12 @@ from ncflow.skeleton import Skeleton, save_skeleton
 from ncflow.track.frames import frame_files
 from ncflow.track.outputs import write_sequence_outputs
 from ncflow.track.warm import (
+    WARM_LR,
     final_data,
     fixed_weights,
     follow_placement,
     load_state,
     save_state,
-    warm_config,
 )
 
 __all__ = ["DEFAULT_FPS", "LOST_RATIO", "WARM_STEPS", "TrackReport", "track_sequence"]
@@ -230,23 +230,31 @@ def _write_frame(out: Path, stem: str, result, record: dict) -> None:
 
 @dataclasses.dataclass
 class _Run:
-    """The configurations of a run: ``full`` (first frame, fallbacks) and ``warm``, both with the bone-weight
-    mode of the first frame once it is known; the normalisation every match of this source uses.
+    """The configuration of a run (``full``: with the bone-weight mode of the first frame once it is known),
+    the normalisation every match of this source uses, and the compiled programs of the first match: every
+    later frame, warm (the last phase alone, :class:`~ncflow.matcher.steps.WarmStart`'s ``steps``) or
+    searched again, runs on them — they depend only on the source, the skeleton and the configuration.
     """
 
     config: Config
     warm_steps: int
     normalization: object
     full: Config | None = None
-    warm: Config | None = None
     mode: str | None = None
-    programs: object = None  # the warm frames' compiled programs, shared (they depend only on the source)
+    programs: object = None
 
     def fix_mode(self, mode: str) -> None:
         if self.mode is None:
             self.mode = mode
             self.full = fixed_weights(self.config, mode)
-            self.warm = warm_config(self.config, self.warm_steps, mode)
+
+    def matcher(self, src, frame, skel, quiet, stream, start=None) -> Matcher:
+        """A :class:`~ncflow.matcher.steps.Matcher` of ``frame`` on the run's programs (built by the first)."""
+        matcher = Matcher(
+            src, frame, skel, self.full or self.config, quiet=quiet, stream=stream, start=start, programs=self.programs
+        )
+        self.programs = matcher.programs
+        return matcher
 
 
 def reference(records: list[dict]) -> dict | None:
@@ -276,15 +284,13 @@ def _match_frame(src, frame: Mesh, skel, run: _Run, last: _Last, lost_ratio, ref
     is lost, a full match too (the better kept).
     """
     if last.start is None:
-        result = Matcher(src, frame, skel, run.full or run.config, quiet=quiet, stream=stream).run()
+        result = run.matcher(src, frame, skel, quiet, stream).run()
         return result, {"warm": False, "fell_back": False, "kept": "search"}
     placement = follow_placement(
         last.start.placement, last.placed_target, last.reference, run.normalization.apply(frame.vertices)
     )
-    start = WarmStart(last.start.state, placement)
-    matcher = Matcher(src, frame, skel, run.warm, quiet=quiet, stream=stream, start=start, programs=run.programs)
-    run.programs = matcher.programs
-    warm = matcher.run()
+    start = WarmStart(last.start.state, placement, run.warm_steps, WARM_LR)
+    warm = run.matcher(src, frame, skel, quiet, stream, start).run()
     test = lost(warm, ref, lost_ratio, float(np.linalg.norm(np.ptp(src.vertices, axis=0))))
     info = {
         "warm": True,
@@ -299,7 +305,7 @@ def _match_frame(src, frame: Mesh, skel, run: _Run, last: _Last, lost_ratio, ref
         f"the warm start is lost (data term {test['data_ratio']:.3g}x, fit {test['fit_ratio']:.3g}x the recent "
         "frames'): searching again"
     )
-    full = Matcher(src, frame, skel, run.full, quiet=quiet, stream=stream).run()
+    full = run.matcher(src, frame, skel, quiet, stream).run()
     better = full if final_data(full) < final_data(warm) else warm
     return better, dict(info, fell_back=True, kept="search" if better is full else "warm")
 
@@ -395,7 +401,9 @@ def track_sequence(
         skeleton: the source's skeleton (file or :class:`~ncflow.skeleton.Skeleton`), or None.
         out_dir: the output folder.
         config: the matching configuration (default: the ``fast`` preset); the first frame and every
-            fallback use it whole, warm frames its last phase (:func:`ncflow.track.warm.warm_config`).
+            fallback use it whole, warm frames its last phase alone, ``warm_steps`` steps at peak rate
+            :data:`ncflow.track.warm.WARM_LR` (:func:`ncflow.matcher.stages.last_phase_stages`), on the
+            first frame's compiled programs.
         warm_steps: training steps of a warm frame.
         lost_ratio: a warm frame whose final data term exceeds this × the recent good frames' is searched again.
         fps: frames per second of ``animation.glb`` / ``animation.bvh``.

@@ -5,7 +5,7 @@ Each frame is matched from the **source** (the map of frame k is source → fram
 accumulate); only the start of the optimisation is carried: the trained networks, pose and multipliers
 of the previous frame, handed to :class:`ncflow.matcher.Matcher` as a
 :class:`ncflow.matcher.steps.WarmStart` with its placement, moved onto the new frame by a trimmed rigid
-ICP (:func:`follow_placement`).
+ICP (:func:`follow_placement`), and a short training (the last phase, at peak rate :data:`WARM_LR`).
 """
 
 from __future__ import annotations
@@ -34,34 +34,18 @@ __all__ = [
     "ICP_ITERATIONS",
     "WARM_LR",
     "final_data",
+    "fixed_weights",
     "follow_placement",
     "load_state",
     "save_state",
-    "warm_config",
 ]
 
 WARM_LR = 3e-3
-"""Peak learning rate of a warm frame's training (cosine down to the last phase's end rate)."""
+"""Peak learning rate of a warm frame's training (at most the last phase's; cosine down to its end rate)."""
 ICP_ITERATIONS = 30
 """Iterations of the trimmed ICP that follows the placement from frame to frame."""
 ICP_TRIM = 2.5
 """Pairs farther apart than this × their median distance are left out of an ICP step."""
-
-
-def warm_config(config: Config, steps: int, skinning_weights: str) -> Config:
-    """The configuration of a warm frame: one phase, the last phase of ``config`` (its metric and length
-    scales) shortened to ``steps`` steps at peak rate :data:`WARM_LR`; two interpolation frames (only
-    the end is kept); the bone-weight mode fixed to the first frame's (the trained state depends on it).
-    """
-    last = config.phases[-1]
-    phase = dataclasses.replace(
-        last,
-        name="warm",
-        steps=int(steps),
-        lr=min(WARM_LR, last.lr),
-        warmup=min(last.warmup, max(0, int(steps) // 5)),
-    )
-    return fixed_weights(dataclasses.replace(config, phases=(phase,), frames=2), skinning_weights)
 
 
 def fixed_weights(config: Config, skinning_weights: str) -> Config:

@@ -231,6 +231,7 @@ def view_data(
     max_display_vertices: int = DEFAULT_MAX_DISPLAY_VERTICES,
     max_display_frames: int = DEFAULT_MAX_DISPLAY_FRAMES,
     title: str | None = None,
+    animation: tuple[bytes, Int[np.ndarray, " K"]] | None = None,
 ) -> dict[str, Any]:
     """The JSON object the page reads, from a loaded result (:func:`ncflow.io.result.read_result`).
 
@@ -241,13 +242,18 @@ def view_data(
         max_display_vertices: meshes with more vertices are decimated to about this many.
         max_display_frames: more frames are subsampled to this many (first and last kept).
         title: shown in the page.
+        animation: a skinned GLB of the source (``ncflow track``'s ``animation.glb``: the source's vertices
+            in order, one clip) and per result frame the clip's key it shows (−1: none, the rest
+            pose); the page then plays the clip's skinned mesh, evaluated by three.js, between
+            those frames.
 
     Returns:
         ``{"format", "title", "times" (K',), "bbox" {"min", "max"}, "aspect" (3,), "frames"
         (K', 3, n) uint16 (coordinate planes, delta-coded over frames), "source" {n_vertices,
         n_vertices_original, kept, faces, ref}, "target" {the same, positions}, "skeleton"
         {parents, positions (K', J, 3) float32} or None, "error" {values (m,) float32 (NaN: no
-        ground truth), colors (m, 3) uint8, colour-bar fields} or None}``. Arrays are packed by
+        ground truth), colors (m, 3) uint8, colour-bar fields} or None, "animation" {glb (bytes) uint8,
+        keys (K',) int: the clip key of each frame shown} or None}``. Arrays are packed by
         :func:`encode_array`; positions are quantised in ``bbox``; ``ref`` are the rest source
         positions normalised to [0, 1] per axis (uint16 of 65535), read on the target at the point
         each target vertex maps to.
@@ -290,7 +296,14 @@ def view_data(
         },
         "skeleton": None,
         "error": None,
+        "animation": None,
     }
+    if animation is not None:
+        glb, keys = animation
+        data["animation"] = {
+            "glb": encode_array(np.frombuffer(glb, np.uint8), "uint8"),
+            "keys": [int(k) for k in np.asarray(keys, np.int64)[pick]],
+        }
     if result.skeleton_frames is not None:
         data["skeleton"] = {
             "parents": [int(p) for p in result.skeleton_target.parents],
@@ -476,10 +489,12 @@ def write_page(
     max_display_vertices: int = DEFAULT_MAX_DISPLAY_VERTICES,
     max_display_frames: int = DEFAULT_MAX_DISPLAY_FRAMES,
     title: str = "",
+    animation: tuple[bytes, Int[np.ndarray, " K"]] | None = None,
 ) -> Path:
     """Write the page of a loaded result (its ``target_vertices`` / ``target_faces`` set; ``out`` checked
     by :func:`check_view_output`), atomically; return ``out``. ``ncflow track`` folders come here too, as a
-    :class:`~ncflow.io.result.ResultFolder` of the registered frames (:func:`ncflow.track.folder.track_as_result`).
+    :class:`~ncflow.io.result.ResultFolder` of the registered frames (:func:`ncflow.track.folder.track_as_result`)
+    with their ``animation`` (:func:`ncflow.track.folder.track_animation`; see :func:`view_data`).
     """
     _check_budget(max_display_vertices, "the vertex budget (--max-vertices)", 100)
     _check_budget(max_display_frames, "the frame budget (--max-frames)", 2)
@@ -489,6 +504,7 @@ def write_page(
         max_display_vertices=max_display_vertices,
         max_display_frames=max_display_frames,
         title=title,
+        animation=animation,
     )
     page = render_page(data, viewer_script())
     out.parent.mkdir(parents=True, exist_ok=True)
