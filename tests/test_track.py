@@ -359,6 +359,41 @@ def test_view_refuses_a_broken_animation_glb(track, tmp_path, capsys):
     assert main(["view", str(out), "--out", str(tmp_path / "v.html")]) == 0
 
 
+def test_the_match_kept_is_the_one_whose_bones_hold():
+    from types import SimpleNamespace
+
+    from ncflow.track.sequence import better_match
+
+    def result(held, data):
+        return SimpleNamespace(metrics={"constraints": {"all_satisfied": held}, "phases": [{"data": data}]})
+
+    warm, full = result(True, 0.5), result(False, 0.1)
+    assert (
+        better_match(warm, full) is warm
+        and better_match(result(False, 0.1), result(True, 0.5)).metrics["constraints"]["all_satisfied"]
+    )
+    a, b = result(True, 0.5), result(True, 0.1)
+    assert better_match(a, b) is b and better_match(b, a) is b
+
+
+def test_a_warm_frame_that_tears_a_bone_is_searched_again(tmp_path, monkeypatch):
+    """A warm frame with a bone beyond ε after a frame that held them all is matched again in full, and the
+    match whose bones hold is kept (here every warm result is made to look torn)."""
+    import ncflow.track.sequence as sequence
+
+    monkeypatch.setattr(sequence, "_held", lambda r: r.metrics["phases"][-1]["phase"] != "warm")
+    seq = make_sequence("humanoid", 4, 3, resolution=40, turn=10.0, travel=0.1)
+    record = write_sequence(seq, tmp_path / "data")
+    frames = [tmp_path / "data" / f["mesh"] for f in record["frames"]]
+    out = tmp_path / "out"
+    track_sequence(tmp_path / "data" / "source.ply", frames, tmp_path / "data" / "skeleton.tgf", out, _config(),
+                   warm_steps=5, quiet=True)  # fmt: skip
+    recs = [json.loads((out / "records" / f"{s}.json").read_text()) for s in seq.stems]
+    assert not recs[0]["warm"] and recs[0]["fell_back_reason"] is None
+    for r in recs[1:]:
+        assert r["warm"] and r["fell_back"] and r["fell_back_reason"] == "bones" and r["kept"] == "search"
+
+
 def test_generated_sequence_has_exact_ground_truth(track):
     """Every frame vertex is its ground-truth source point moved by the frame's motion (the source's vertices
     in ``source_frames``), every frame has its own triangulation, and the jump turns the body at once."""

@@ -168,6 +168,7 @@ def _metrics(source, skel, records, ok, config, options, key_error, seconds, n_r
                     "error",
                     "warm",
                     "fell_back",
+                    "fell_back_reason",
                     "kept",
                     "seconds",
                     "data",

@@ -7,8 +7,10 @@ multipliers, and its placement followed onto the new frame (:mod:`ncflow.track.w
 nothing accumulates. When the warm frame's final data term, or its fit (the mean distance from the
 frame's vertices to the registered source, once above :data:`LOST_FIT` of the source's size), is more
 than ``lost_ratio`` × the median of the last few good frames' (:func:`reference`), the warm start is
-called lost and the frame is matched again from scratch (placement and pose search); the better of the
-two by data term is kept (``fell_back`` in its record).
+called lost and the frame is matched again from scratch (placement and pose search); likewise when the warm
+frame leaves a bone beyond its tolerance ε that the previous good frame held (a warm start that lost the
+bones). Of the two the one whose bones hold is kept when only one does, else the lower final data term
+(``fell_back`` and ``fell_back_reason``, ``lost`` or ``bones``, in its record).
 
 Each frame's outputs are written, atomically, as soon as it is done: ``maps/STEM.npz``
 (``face``, ``bary``: the source point of every frame vertex, as ``map_tgt_to_src.npz``),
@@ -197,6 +199,7 @@ def _frame_record(stem, path, sha, previous, result, info, seconds) -> dict:
         "status": "ok",
         "warm": info["warm"],
         "fell_back": info["fell_back"],
+        "fell_back_reason": info.get("fell_back_reason"),
         "kept": info["kept"],
         "seconds": seconds,
         "data": final_data(result),
@@ -279,9 +282,24 @@ def lost(result, ref: dict, lost_ratio: float, size: float) -> dict:
     return {"data_ratio": data_ratio, "fit_ratio": fit_ratio, "lost": bool(data_ratio > lost_ratio or far)}
 
 
-def _match_frame(src, frame: Mesh, skel, run: _Run, last: _Last, lost_ratio, ref, quiet, stream):
+def _held(result) -> bool:
+    """Every bone of ``result`` within its tolerance ε."""
+    return bool(result.metrics["constraints"]["all_satisfied"])
+
+
+def better_match(warm, full):
+    """The frame's match kept of its warm one and its full one: the one whose bones hold when only one does,
+    else the lower final data term.
+    """
+    if _held(warm) != _held(full):
+        return warm if _held(warm) else full
+    return full if final_data(full) < final_data(warm) else warm
+
+
+def _match_frame(src, frame: Mesh, skel, run: _Run, last: _Last, lost_ratio, ref, held, quiet, stream):
     """(result, info) of one frame: a full match without a previous frame, else a warm one and, when it
-    is lost, a full match too (the better kept).
+    is lost or leaves a bone beyond ε that the previous frame (``held``: all its bones within ε) held, a full
+    match too (:func:`better_match` kept).
     """
     if last.start is None:
         result = run.matcher(src, frame, skel, quiet, stream).run()
@@ -292,6 +310,7 @@ def _match_frame(src, frame: Mesh, skel, run: _Run, last: _Last, lost_ratio, ref
     start = WarmStart(last.start.state, placement, run.warm_steps, WARM_LR)
     warm = run.matcher(src, frame, skel, quiet, stream, start).run()
     test = lost(warm, ref, lost_ratio, float(np.linalg.norm(np.ptp(src.vertices, axis=0))))
+    torn = held and not _held(warm)
     info = {
         "warm": True,
         "fell_back": False,
@@ -299,15 +318,21 @@ def _match_frame(src, frame: Mesh, skel, run: _Run, last: _Last, lost_ratio, ref
         "data_ratio": test["data_ratio"],
         "fit_ratio": test["fit_ratio"],
     }
-    if not test["lost"]:
+    if not (test["lost"] or torn):
         return warm, info
-    _message(quiet, stream)(
-        f"the warm start is lost (data term {test['data_ratio']:.3g}x, fit {test['fit_ratio']:.3g}x the recent "
-        "frames'): searching again"
-    )
+    if test["lost"]:
+        why = (
+            f"the warm start is lost (data term {test['data_ratio']:.3g}x, fit {test['fit_ratio']:.3g}x the recent "
+            "frames')"
+        )
+    else:
+        ratio = warm.metrics["constraints"]["max_violation_ratio"]
+        why = f"the warm start left a bone beyond its tolerance ({ratio:.3g} eps) that the previous frame held"
+    _message(quiet, stream)(f"{why}: searching again")
     full = run.matcher(src, frame, skel, quiet, stream).run()
-    better = full if final_data(full) < final_data(warm) else warm
-    return better, dict(info, fell_back=True, kept="search" if better is full else "warm")
+    better = better_match(warm, full)
+    reason = "lost" if test["lost"] else "bones"
+    return better, dict(info, fell_back=True, fell_back_reason=reason, kept="search" if better is full else "warm")
 
 
 def _hand_on(state, placement: Placement, norm, frame, registered, stem: str) -> _Last:
@@ -445,7 +470,11 @@ def track_sequence(
         t1 = time.perf_counter()
         try:
             frame = load_target(path)
-            result, info = _match_frame(src, frame, skel, run, last, lost_ratio, reference(records), quiet, stream)
+            held = next(
+                (r.get("all_bones_within_tolerance", True) for r in reversed(records) if r["status"] == "ok"), True
+            )
+            ref = reference(records)
+            result, info = _match_frame(src, frame, skel, run, last, lost_ratio, ref, held, quiet, stream)
         except NcflowError as exc:
             records.append(_failed(out, stem, path, sha, last.stem, exc, message))
         else:
