@@ -362,7 +362,7 @@ def test_view_refuses_a_broken_animation_glb(track, tmp_path, capsys):
 def test_the_match_kept_is_the_one_whose_bones_hold():
     from types import SimpleNamespace
 
-    from ncflow.track.sequence import better_match
+    from ncflow.track.warm import better_match
 
     def result(held, data):
         return SimpleNamespace(metrics={"constraints": {"all_satisfied": held}, "phases": [{"data": data}]})
@@ -380,8 +380,13 @@ def test_a_warm_frame_that_tears_a_bone_is_searched_again(tmp_path, monkeypatch)
     """A warm frame with a bone beyond ε after a frame that held them all is matched again in full, and the
     match whose bones hold is kept (here every warm result is made to look torn)."""
     import ncflow.track.sequence as sequence
+    import ncflow.track.warm as warm
 
-    monkeypatch.setattr(sequence, "_held", lambda r: r.metrics["phases"][-1]["phase"] != "warm")
+    def held(result):
+        return result.metrics["phases"][-1]["phase"] != "warm"
+
+    monkeypatch.setattr(sequence, "bones_held", held)
+    monkeypatch.setattr(warm, "bones_held", held)
     seq = make_sequence("humanoid", 4, 3, resolution=40, turn=10.0, travel=0.1)
     record = write_sequence(seq, tmp_path / "data")
     frames = [tmp_path / "data" / f["mesh"] for f in record["frames"]]

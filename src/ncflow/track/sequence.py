@@ -5,7 +5,7 @@ whole schedule). Every later frame starts from the previous good frame — its t
 multipliers, and its placement followed onto the new frame (:mod:`ncflow.track.warm`) — and trains
 ``warm_steps`` steps of the last phase; its map is still the map from the **source** to that frame, so
 nothing accumulates. When the warm frame's final data term, or its fit (the mean distance from the
-frame's vertices to the registered source, once above :data:`LOST_FIT` of the source's size), is more
+frame's vertices to the registered source, once above :data:`ncflow.track.warm.LOST_FIT` of the source's size), is more
 than ``lost_ratio`` × the median of the last few good frames' (:func:`reference`), the warm start is
 called lost and the frame is matched again from scratch (placement and pose search); likewise when the warm
 frame leaves a bone beyond its tolerance ε that the previous good frame held (a warm start that lost the
@@ -55,10 +55,14 @@ from ncflow.track.frames import frame_files
 from ncflow.track.outputs import write_sequence_outputs
 from ncflow.track.warm import (
     WARM_LR,
+    better_match,
+    bones_held,
     final_data,
     fixed_weights,
     follow_placement,
     load_state,
+    lost,
+    reference,
     save_state,
 )
 
@@ -69,12 +73,6 @@ WARM_STEPS = 50
 LOST_RATIO = 3.0
 """A warm frame whose final data term or fit exceeds this × the recent frames' (:func:`reference`) is matched
 again from scratch."""
-LOST_FIT = 0.02
-"""A fit (mean distance from the frame to the registered source) below this × the source's bounding-box
-diagonal never calls a warm start lost: the data term of a frame far from its match saturates (the
-kernel's cross term vanishes), so a jump shows in the fit first."""
-REFERENCE_FRAMES = 5
-"""Good frames whose data terms and fits make the reference of the lost-warm-start test (:func:`reference`)."""
 DEFAULT_FPS = 24.0
 """Frames per second of the animation."""
 MANIFEST = "track.json"
@@ -260,42 +258,6 @@ class _Run:
         return matcher
 
 
-def reference(records: list[dict]) -> dict | None:
-    """What a warm frame's final data term and fit are compared with: the medians of the last
-    :data:`REFERENCE_FRAMES` good frames' (both grow as the pose moves away from the source's, so the
-    reference follows the sequence; a lost frame is a jump above it). None before any good frame.
-    """
-    ok = [r for r in records if r.get("status") == "ok"][-REFERENCE_FRAMES:]
-    if not ok:
-        return None
-    return {"data": float(np.median([r["data"] for r in ok])), "fit": float(np.median([r["fit"] for r in ok]))}
-
-
-def lost(result, ref: dict, lost_ratio: float, size: float) -> dict:
-    """The lost-warm-start test of a warm frame's result against :func:`reference` (module docstring):
-    ``data_ratio``, ``fit_ratio`` and whether the warm start is ``lost``.
-    """
-    data_ratio = final_data(result) / max(ref["data"], 1e-30)
-    fit = result.metrics["correspondence"]["mean_distance_target_to_flowed_source"]
-    fit_ratio = fit / max(ref["fit"], 1e-30)
-    far = fit > LOST_FIT * size and fit_ratio > lost_ratio
-    return {"data_ratio": data_ratio, "fit_ratio": fit_ratio, "lost": bool(data_ratio > lost_ratio or far)}
-
-
-def _held(result) -> bool:
-    """Every bone of ``result`` within its tolerance ε."""
-    return bool(result.metrics["constraints"]["all_satisfied"])
-
-
-def better_match(warm, full):
-    """The frame's match kept of its warm one and its full one: the one whose bones hold when only one does,
-    else the lower final data term.
-    """
-    if _held(warm) != _held(full):
-        return warm if _held(warm) else full
-    return full if final_data(full) < final_data(warm) else warm
-
-
 def _match_frame(src, frame: Mesh, skel, run: _Run, last: _Last, lost_ratio, ref, held, quiet, stream):
     """(result, info) of one frame: a full match without a previous frame, else a warm one and, when it
     is lost or leaves a bone beyond ε that the previous frame (``held``: all its bones within ε) held, a full
@@ -310,7 +272,7 @@ def _match_frame(src, frame: Mesh, skel, run: _Run, last: _Last, lost_ratio, ref
     start = WarmStart(last.start.state, placement, run.warm_steps, WARM_LR)
     warm = run.matcher(src, frame, skel, quiet, stream, start).run()
     test = lost(warm, ref, lost_ratio, float(np.linalg.norm(np.ptp(src.vertices, axis=0))))
-    torn = held and not _held(warm)
+    torn = held and not bones_held(warm)
     info = {
         "warm": True,
         "fell_back": False,

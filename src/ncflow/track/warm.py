@@ -1,5 +1,7 @@
-"""What one tracked frame hands the next: the warm configuration, the placement followed from frame to
-frame, the trained state on disk, and the test that says a warm start was lost.
+"""What one tracked frame hands the next: the bone-weight mode, the placement followed from frame to frame,
+the trained state on disk, and the tests that say a warm start was lost (:func:`lost`: data term or fit
+far above the recent frames', :func:`reference`; :func:`bones_held`) and which of a frame's two matches
+is kept (:func:`better_match`).
 
 Each frame is matched from the **source** (the map of frame k is source → frame k, so errors do not
 accumulate); only the start of the optimisation is carried: the trained networks, pose and multipliers
@@ -32,11 +34,17 @@ from ncflow.skeleton.kinematics import rest_pose
 
 __all__ = [
     "ICP_ITERATIONS",
+    "LOST_FIT",
+    "REFERENCE_FRAMES",
     "WARM_LR",
+    "better_match",
+    "bones_held",
     "final_data",
     "fixed_weights",
     "follow_placement",
     "load_state",
+    "lost",
+    "reference",
     "save_state",
 ]
 
@@ -46,6 +54,12 @@ ICP_ITERATIONS = 30
 """Iterations of the trimmed ICP that follows the placement from frame to frame."""
 ICP_TRIM = 2.5
 """Pairs farther apart than this × their median distance are left out of an ICP step."""
+LOST_FIT = 0.02
+"""A fit (mean distance from the frame to the registered source) below this × the source's bounding-box
+diagonal never calls a warm start lost: the data term of a frame far from its match saturates (the
+kernel's cross term vanishes), so a jump shows in the fit first."""
+REFERENCE_FRAMES = 5
+"""Good frames whose data terms and fits make the reference of the lost-warm-start test (:func:`reference`)."""
 
 
 def fixed_weights(config: Config, skinning_weights: str) -> Config:
@@ -117,3 +131,39 @@ def load_state(
     """
     params, pose, mult = eqx.tree_deserialise_leaves(path, _template(skeleton, norm, config, weight_mode))
     return TrainState(params, pose, mult)
+
+
+def reference(records: list[dict]) -> dict | None:
+    """What a warm frame's final data term and fit are compared with: the medians of the last
+    :data:`REFERENCE_FRAMES` good frames' (both grow as the pose moves away from the source's, so the
+    reference follows the sequence; a lost frame is a jump above it). None before any good frame.
+    """
+    ok = [r for r in records if r.get("status") == "ok"][-REFERENCE_FRAMES:]
+    if not ok:
+        return None
+    return {"data": float(np.median([r["data"] for r in ok])), "fit": float(np.median([r["fit"] for r in ok]))}
+
+
+def lost(result, ref: dict, lost_ratio: float, size: float) -> dict:
+    """The lost-warm-start test of a warm frame's result against :func:`reference` (:mod:`ncflow.track.sequence`):
+    ``data_ratio``, ``fit_ratio`` and whether the warm start is ``lost``.
+    """
+    data_ratio = final_data(result) / max(ref["data"], 1e-30)
+    fit = result.metrics["correspondence"]["mean_distance_target_to_flowed_source"]
+    fit_ratio = fit / max(ref["fit"], 1e-30)
+    far = fit > LOST_FIT * size and fit_ratio > lost_ratio
+    return {"data_ratio": data_ratio, "fit_ratio": fit_ratio, "lost": bool(data_ratio > lost_ratio or far)}
+
+
+def bones_held(result) -> bool:
+    """Every bone of ``result`` within its tolerance ε."""
+    return bool(result.metrics["constraints"]["all_satisfied"])
+
+
+def better_match(warm, full):
+    """The frame's match kept of its warm one and its full one: the one whose bones hold when only one does,
+    else the lower final data term.
+    """
+    if bones_held(warm) != bones_held(full):
+        return warm if bones_held(warm) else full
+    return full if final_data(full) < final_data(warm) else warm
