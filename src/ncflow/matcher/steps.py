@@ -160,6 +160,16 @@ class Matcher:
         self.timings["target"] = time.perf_counter() - t1
         self.timings["setup"] = time.perf_counter() - t0
 
+    def _placeholders(self) -> dict | None:
+        """Targets of the right shape (stand-ins) for the data terms of the programs that no stage trained
+        here reads (a short warm start's last phase reads one); None when every one is read.
+        """
+        read = {st.metric for st in self.stages}
+        unread = [st for st in self.programs.stages if st.metric not in read]
+        if not unread:
+            return None
+        return stage_placeholders(unread, target_stand_ins(self.setup, unread, self.config))
+
     def run(self) -> MatchResult:
         """Train, then build the result (user coordinates)."""
         cfg, programs = self.config, self.programs
@@ -177,9 +187,7 @@ class Matcher:
             self.progress,
             self.placed.initial_pose,
             start=None if self.start is None else self.start.state,
-            placeholders=stage_placeholders(
-                list(programs.stages), target_stand_ins(self.setup, list(programs.stages), cfg)
-            ),
+            placeholders=self._placeholders(),
         )
         train_seconds = time.perf_counter() - t_train
         timings = dict(self.timings, train=train_seconds, per_step=train_seconds / max(trained.steps, 1))

@@ -82,13 +82,16 @@ def _rotations(pose: Pose) -> Rotation:
     return Rotation.from_quat(q[:, [1, 2, 3, 0]])
 
 
+def _slerp(ra: Rotation, rb: Rotation, s: float) -> Rotation:
+    """Each rotation a fraction ``s`` of the way from ``ra`` to ``rb`` along the shorter arc."""
+    return ra * Rotation.from_rotvec(float(s) * (ra.inv() * rb).as_rotvec())
+
+
 def blend_poses(a: Pose, b: Pose, s: float) -> Pose:
     """The pose a fraction ``s`` ∈ [0, 1] of the way from ``a`` to ``b``: each joint's rotation slerped,
     the root translation interpolated linearly.
     """
-    ra, rb = _rotations(a), _rotations(b)
-    r = ra * Rotation.from_rotvec(float(s) * (ra.inv() * rb).as_rotvec())
-    q = r.as_quat()[:, [3, 0, 1, 2]]
+    q = _slerp(_rotations(a), _rotations(b), s).as_quat()[:, [3, 0, 1, 2]]
     t = (1.0 - s) * np.asarray(a.translation, np.float64) + s * np.asarray(b.translation, np.float64)
     return Pose(q, t)
 
@@ -196,12 +199,6 @@ def make_sequence(
     return Sequence(name, source, ch.skeleton, tuple(frames), tuple(truths), np.stack(joints), np.stack(moved), info)
 
 
-def _blend_rotvecs(a: np.ndarray, b: np.ndarray, s: float) -> np.ndarray:
-    """(K, 3) axis-angle rotations a fraction ``s`` of the way from ``a`` to ``b``, each slerped."""
-    ra, rb = Rotation.from_rotvec(a), Rotation.from_rotvec(b)
-    return (ra * Rotation.from_rotvec(float(s) * (ra.inv() * rb).as_rotvec())).as_rotvec()
-
-
 def mano_sequence(
     model,
     poses: Sequence_[int | str],
@@ -238,12 +235,12 @@ def mano_sequence(
         raise InputError(f"a sequence needs 2 to {MAX_FRAMES} frames, got {n_frames}")
     if len(poses) < 2:
         raise InputError(f"a MANO sequence needs at least two key poses, got {len(poses)}")
-    keys = [mano_finger_pose(model, p).reshape(-1, 3) for p in poses]
+    keys = [Rotation.from_rotvec(mano_finger_pose(model, p).reshape(-1, 3)) for p in poses]
     name = name or f"mano_seq_{poses[0]}_{poses[-1]}"
     rng = np.random.default_rng(_pair_seed(seed, 21))
     axis, direction = rng.normal(size=3), rng.normal(size=3)
     axis, direction = axis / np.linalg.norm(axis), direction / np.linalg.norm(direction)
-    v0, j0 = mano_forward(model, keys[0].reshape(-1))
+    v0, j0 = mano_forward(model, keys[0].as_rotvec().reshape(-1))
     skeleton = mano_skeleton(model, j0, v0, MANO_TIP_VERTICES, name)
     rest_v, _ = mano_forward(model, np.zeros(3 * (model.n_joints - 1)))
     diag = float(np.linalg.norm(np.ptp(v0, axis=0)))
@@ -252,7 +249,7 @@ def mano_sequence(
     for k in range(int(n_frames)):
         t = k / (n_frames - 1)
         seg = min(int(t * n_seg), n_seg - 1)
-        theta = _blend_rotvecs(keys[seg], keys[seg + 1], _smoothstep(t * n_seg - seg))
+        theta = _slerp(keys[seg], keys[seg + 1], _smoothstep(t * n_seg - seg)).as_rotvec()
         verts, js = mano_forward(
             model, theta.reshape(-1), np.radians(turn * t) * axis, translation=travel * t * diag * direction
         )

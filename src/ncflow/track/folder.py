@@ -17,6 +17,7 @@ import numpy as np
 
 from ncflow.errors import InputError
 from ncflow.io.files import confined_path, read_json_object, read_npz_arrays
+from ncflow.io.gltf.skins import load_gltf_skin
 from ncflow.io.meshes import load_mesh
 from ncflow.io.points import load_target
 from ncflow.io.result import ResultFolder
@@ -109,8 +110,6 @@ def track_animation(path: str | os.PathLike, result: ResultFolder) -> tuple[byte
         InputError: an ``animation.glb`` that is not that (one line naming it), or over
             :data:`MAX_ANIMATION_BYTES`.
     """
-    from ncflow.io.gltf.skins import load_gltf_skin
-
     glb = Path(path) / "animation.glb"
     if not glb.is_file():
         return None
