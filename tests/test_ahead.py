@@ -17,7 +17,7 @@ from ncflow.matcher.place import place
 from ncflow.matcher.prepare import prepare
 from ncflow.matcher.stages import build_stages
 from ncflow.matcher.steps import Matcher
-from ncflow.matcher.targets import target_measures, target_stand_ins
+from ncflow.matcher.targets import source_rows, target_measures, target_stand_ins
 from ncflow.skeleton import Skeleton
 from ncflow.synthetic.shapes import bend, capsule
 from tiny import TINY as TINY_SETTINGS
@@ -49,7 +49,8 @@ def test_target_stand_ins_have_the_shapes_of_the_target_measures(compress):
         assert [(a.shape, a.dtype) for a in jax.tree_util.tree_leaves(s)] == [
             (a.shape, a.dtype) for a in jax.tree_util.tree_leaves(y)
         ]
-        rows = y.centers.shape[0]
+        rows = y.measure.centers.shape[0]
+        assert y.source_weights.shape == (source_rows(setup),) and np.all(np.asarray(y.source_weights) == 1.0)
         unpadded = tgt.faces.shape[0] if key[0] == "varifold" else setup.target_topology.n_edges
         assert rows == 150 if compress == "150" else rows > unpadded  # padded to the bucket above
 

@@ -252,7 +252,9 @@ def test_write_then_read_result(tmp_path, sphere):
     inputs, tv = _result_inputs(sphere)
     maps = inputs["maps"]
     out = write_result(tmp_path / "res", ResultFolder(**inputs))
-    assert sorted(p.name for p in out.iterdir()) == sorted(set(CONTRACT_FILES) - {"skeleton_source.tgf"})
+    assert sorted(p.name for p in out.iterdir()) == sorted(
+        set(CONTRACT_FILES) - {"skeleton_source.tgf", "source_seen.txt"}
+    )
     assert _leftovers(tmp_path, "res") == []
     ns, nt, k = rest.shape[0], tv.shape[0], 5
     # deformed source
@@ -351,7 +353,12 @@ def test_result_without_skeleton(tmp_path, sphere):
     inputs, _ = _result_inputs(sphere, k=2)
     inputs.update(skeleton_target=None, skeleton_frames=None)
     out = write_result(tmp_path / "res", ResultFolder(**inputs))
-    without = set(CONTRACT_FILES) - {"skeleton_target.tgf", "skeleton_frames.json", "skeleton_source.tgf"}
+    without = set(CONTRACT_FILES) - {
+        "skeleton_target.tgf",
+        "skeleton_frames.json",
+        "skeleton_source.tgf",
+        "source_seen.txt",
+    }
     assert sorted(p.name for p in out.iterdir()) == sorted(without)
     r = read_result(out)
     assert r.skeleton_target is None and r.skeleton_frames is None and r.n_frames == 2
@@ -362,13 +369,16 @@ def test_result_with_a_suggested_source_skeleton(tmp_path, sphere):
     result with a given skeleton removes it (it is a contract entry)."""
     inputs, _ = _result_inputs(sphere, k=2)
     source_skeleton = inputs["skeleton_target"].with_positions(inputs["skeleton_target"].positions * 0.5)
-    out = write_result(tmp_path / "res", ResultFolder(**inputs, skeleton_source=source_skeleton))
+    seen = np.linspace(0.0, 1.0, inputs["deformed_source"].shape[0])
+    out = write_result(tmp_path / "res", ResultFolder(**inputs, skeleton_source=source_skeleton, source_seen=seen))
     assert sorted(p.name for p in out.iterdir()) == sorted(CONTRACT_FILES)
+    np.testing.assert_allclose(read_result(out).source_seen, seen, atol=5e-5)  # four decimals
     back = read_result(out).skeleton_source
     np.testing.assert_allclose(back.positions, source_skeleton.positions, atol=1e-6)
     np.testing.assert_array_equal(back.parents, source_skeleton.parents)
     write_result(out, ResultFolder(**inputs), overwrite=True)
     assert not (out / "skeleton_source.tgf").exists() and read_result(out).skeleton_source is None
+    assert not (out / "source_seen.txt").exists() and read_result(out).source_seen is None
 
 
 @pytest.mark.parametrize("where", ["frames", "deformed", "bary", "metrics", "skeleton"])

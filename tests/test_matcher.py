@@ -14,7 +14,7 @@ from ncflow.geometry.mesh import Mesh
 from ncflow.geometry.overlap import self_overlap
 from ncflow.io.meshes import save_mesh
 from ncflow.io.result import read_result
-from ncflow.matcher.inputs import check_precision, check_sizes, load_inputs, size_ratio
+from ncflow.matcher.inputs import check_precision, check_sizes, diameter, load_inputs, size_ratio
 from ncflow.matcher.prepare import prepare
 from ncflow.matcher.steps import Matcher, match
 from ncflow.skeleton import Skeleton, save_skeleton
@@ -278,6 +278,29 @@ def test_a_view_from_one_side_is_a_partial_target_of_the_same_size_not_another_s
     assert area == pytest.approx(share, abs=0.08)  # what the size check alone would call 0.45-0.7x
     (note,) = check_sizes(src, view)
     assert f"shows about {area:.0%} of the source's surface area" in note and "partial view" in note
+
+
+def test_a_quarter_of_the_surface_cut_across_the_length_is_a_partial_target(pair):
+    """Cut across the capsule's length too (half its diameter, a quarter of its area): open where the source
+    is closed, so a partial view, not another scale; the same quarter closed (capped: a whole small
+    capsule) is still another scale, and the quarter in millimetres is refused."""
+    src = pair[0]
+    half = _one_side(src, 0.5)
+    centres = half.vertices[half.faces].mean(axis=1)
+    axis = np.argmax(np.ptp(src.vertices, axis=0))
+    keep = centres[:, axis] > np.median(centres[:, axis])
+    used, faces = np.unique(half.faces[keep], return_inverse=True)
+    quarter = Mesh(half.vertices[used], faces.reshape(-1, 3), "quarter.ply")
+    assert size_ratio(src, quarter) ** 2 == pytest.approx(0.25, abs=0.08)
+    across = diameter(quarter.vertices) / diameter(src.vertices)
+    assert across < 1.0 / 1.25  # beyond what a view along the whole length may lack
+    (note,) = check_sizes(src, quarter)
+    assert "partial view" in note
+    small = Mesh(src.vertices * 0.45, src.faces, "small.ply")
+    with pytest.raises(InputError, match="different units"):
+        check_sizes(src, small)
+    with pytest.raises(InputError, match="different units"):
+        check_sizes(src, Mesh(quarter.vertices * 1000.0, quarter.faces, "quarter_mm.ply"))
 
 
 def test_a_partial_view_in_other_units_is_still_refused(pair):

@@ -18,7 +18,7 @@ from ncflow.matcher.objective import Arrays, Settings, constraint_term, objectiv
 from ncflow.matcher.place import place
 from ncflow.matcher.prepare import DTYPE, prepare
 from ncflow.matcher.stages import build_stages
-from ncflow.matcher.targets import target_measures
+from ncflow.matcher.targets import TargetMeasure, target_measures
 from ncflow.matcher.train import build_optimizer, held_phases, init_params, make_step, parameter_labels
 from ncflow.optim.mdmm import Multipliers, multiplier_rate, update_multipliers
 from ncflow.skeleton import Skeleton
@@ -117,11 +117,39 @@ def test_objective_at_identity_flow_is_the_data_term_plus_nothing(problem):
 
     metric = get_metric(st.metric)
     x = metric.represent(arrays.source, arrays.topology)
-    direct = float(metric.distance(x, target, st.sigma, 0.5)) / yy
+    direct = float(metric.distance(x, target.measure, st.sigma, 0.5)) / yy
     assert float(aux["data"]) == pytest.approx(direct, rel=1e-4)
     np.testing.assert_allclose(np.asarray(aux["g_ep"]), 0.0, atol=1e-10)
     assert float(aux["constraint"]) == pytest.approx(0.0, abs=1e-10)
     assert float(total) == pytest.approx(float(aux["data"]) + cfg.weights.surface * float(aux["surface"]), rel=1e-6)
+
+
+def test_data_term_reads_only_what_the_target_shows(problem):
+    """A target measure's source weights ω restrict the flowed source's measure in the data term
+    (:func:`ncflow.measures.partial.restrict`): the term equals the restricted measure's distance, brute
+    force, for each metric; ω ≡ 1 gives the whole one."""
+    from ncflow.matcher.objective import _data_term
+    from ncflow.measures.partial import restrict
+    from ncflow.measures.registry import get_metric
+
+    cfg, prob, stages, targets = problem
+    arrays = Arrays.from_problem(prob)
+    firsts = {}
+    for st in stages:
+        firsts.setdefault(st.metric, st)
+    upper = (np.asarray(arrays.source)[:, 2] > 0.0).astype(np.float32)
+    for m, st in firsts.items():
+        target, yy, _ = targets[(st.metric, st.sigma, st.phase_config.sigma_normal)]
+        metric = get_metric(m)
+        values = []
+        for w in (upper, np.ones_like(upper)):
+            got = _data_term(
+                (m,), 0, arrays.source, arrays, (TargetMeasure(target.measure, jnp.asarray(w)),), st.sigma, 0.5, yy
+            )
+            x = restrict(metric.represent(arrays.source, arrays.topology), arrays.topology, w)
+            assert float(got) == pytest.approx(float(metric.distance(x, target.measure, st.sigma, 0.5)) / yy, rel=1e-4)
+            values.append(float(got))
+        assert abs(values[0] - values[1]) > 1e-2 * abs(values[1])
 
 
 def test_one_step_for_every_metric_picks_the_stage_data_term(problem):

@@ -245,6 +245,7 @@ def test_symlinked_out_with_overwrite_never_moves_user_files(tmp_path, monkeypat
             "skeleton_frames.json",
             "skeleton_source.tgf",
             "target.ply",
+            "source_seen.txt",
         }
         assert sorted(p.name for p in mine.iterdir()) == sorted([*no_skeleton, "notes.txt", "data"])
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in", "link", "mine"]  # nothing moved out

@@ -499,3 +499,51 @@ def test_url_hash_sets_the_view_and_nothing_is_requested_without_the_policy(case
         assert html_lib.unescape(view.page.title()).endswith("ncflow view")
     finally:
         view.page.close()
+
+
+def _with_seen(case, tmp_path) -> tuple[Path, np.ndarray]:
+    """The case's result folder again with ``source_seen.txt``: the source's upper half shown, the rest not."""
+    folder = tmp_path / "partial"
+    shutil.copytree(case["result"], folder)
+    rest = case["rest"]
+    seen = (rest[:, 1] > np.median(rest[:, 1])).astype(np.float64)
+    (folder / "source_seen.txt").write_text("".join(f"{v:.4f}\n" for v in seen))
+    return folder, seen
+
+
+def test_page_carries_what_a_partial_target_shows(case, tmp_path):
+    folder, seen = _with_seen(case, tmp_path)
+    np.testing.assert_array_equal(read_result(folder, check_animation=False).source_seen, seen)
+    data = _page_data(write_view(folder, tmp_path / "v.html"))
+    kept = decode_array(data["source"]["kept"])
+    np.testing.assert_array_equal(decode_array(data["seen"]["values"]), np.rint(seen[kept] * 255))
+    whole = _page_data(write_view(case["result"], tmp_path / "w.html"))
+    assert whole["seen"] is None  # no source_seen.txt: no such colour mode
+    (folder / "source_seen.txt").write_text("".join("1.5\n" for _ in seen))
+    with pytest.raises(InputError, match=r"source_seen\.txt.*outside \[0, 1\]"):
+        read_result(folder, check_animation=False)
+
+
+@browser_test
+def test_shown_colours_the_source_by_what_the_target_shows_in_chromium(case, browser, tmp_path):
+    folder, _ = _with_seen(case, tmp_path)
+    view = _Page(browser, write_view(folder, tmp_path / "v.html"))
+    page = view.page
+    try:
+        third = view.pixels().shape[1] // 3
+        before = view.pixels()
+        page.select_option("#ncv-mode", "shown")
+        page.evaluate("new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))")
+        after = view.pixels()
+        assert page.evaluate("window.ncflowViewer.state()")["mode"] == "shown"
+        assert _changed(before[:, :third], after[:, :third]) > 0.02  # the source is recoloured
+        assert _changed(before[:, 2 * third :], after[:, 2 * third :]) < 0.002  # the target is not
+        # the source's two colours: orange where shown, blue where not
+        src = after[:, :third].reshape(-1, 3).astype(float)
+        orange = np.sum((src[:, 0] > src[:, 2] + 60) & (src[:, 0] > 90))
+        blue = np.sum((src[:, 2] > src[:, 0] + 40) & (src[:, 2] > 70))
+        assert orange > 200 and blue > 200
+        assert "shown by the target" in page.inner_text("#ncv-stage")
+        assert view.errors == [] and view.requests == [view.url]
+    finally:
+        page.close()

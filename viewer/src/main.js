@@ -37,7 +37,9 @@ import { GLTFLoader } from "three/addons/loaders/GLTFLoader.js";
 // what three.js's loaders call instead of fetch (build.mjs rewrites their calls): the page requests nothing
 globalThis.ncflowNoNetwork = () => Promise.reject(new Error("ncflow view makes no network request"));
 
-const MODES = { position: 0, checker: 1, error: 2 };
+const MODES = { position: 0, checker: 1, error: 2, shown: 3 };
+const SHOWN_COLOR = [0.95, 0.72, 0.3]; // a source vertex the target shows
+const HIDDEN_COLOR = [0.22, 0.32, 0.62]; // one it does not (a scan's far side, a hole)
 const PLAY_SECONDS = 3.0; // one sweep of the timeline
 
 const VERTEX_SHADER = `
@@ -326,6 +328,7 @@ function buildDom(data) {
   element("option", { value: "position", text: "position" }, mode);
   element("option", { value: "checker", text: "checker" }, mode);
   if (data.error) element("option", { value: "error", text: "geodesic error" }, mode);
+  if (data.seen) element("option", { value: "shown", text: "shown by the target" }, mode);
   const info = element("div", { id: "ncv-info" }, root);
   if (!data.skeleton) {
     skeleton.disabled = true;
@@ -383,6 +386,12 @@ async function start() {
     ? unitFloats(await decodeArray(data.error.colors), 255)
     : new Float32Array(tgtPos.length);
   const srcECol = new Float32Array(nv * 3).fill(0.5);
+  if (data.seen) {
+    const seen = unitFloats(await decodeArray(data.seen.values), 255);
+    for (let v = 0; v < nv; v++) {
+      for (let c = 0; c < 3; c++) srcECol[3 * v + c] = HIDDEN_COLOR[c] + seen[v] * (SHOWN_COLOR[c] - HIDDEN_COLOR[c]);
+    }
+  }
 
   const srcGeom = surfaceGeometry(frames.slice(0, nv * 3), srcFaces, srcRef, srcECol);
   const flowGeom = surfaceGeometry(frames.slice(0, nv * 3), srcFaces, srcRef, srcECol);
@@ -483,9 +492,10 @@ async function start() {
   function layoutLabels() {
     const list = panels();
     const target = state.mode === "error" ? "target: geodesic error" : "target";
+    const seen = state.mode === "shown" ? ": shown by the target (orange) or not (blue)" : "";
     const names = state.overlay
-      ? [`flowed source over the ${target} (transparent)`]
-      : ["source (t = 0)", "flowed source", target];
+      ? [`flowed source${seen} over the ${target} (transparent)`]
+      : [`source (t = 0)${seen}`, "flowed source", target];
     ui.labels.forEach((label, i) => {
       const p = list[i];
       label.style.display = p ? "block" : "none";
@@ -554,14 +564,17 @@ async function start() {
   }
 
   function applyMode(mode) {
-    if (!(mode in MODES) || (mode === "error" && !data.error)) mode = "position";
+    if (!(mode in MODES) || (mode === "error" && !data.error) || (mode === "shown" && !data.seen)) mode = "position";
     state.mode = mode;
     ui.mode.value = mode;
     const code = MODES[mode];
-    materials.src.uniforms.mode.value = code === 2 ? 0 : code;
-    materials.flow.uniforms.mode.value = code === 2 ? 0 : code;
-    materials.tgt.uniforms.mode.value = code;
-    materials.ghost.uniforms.mode.value = code;
+    // error: the target's colours; shown: the source's (what the target shows of it)
+    const onSource = code === 3 ? 2 : code === 2 ? 0 : code;
+    const onTarget = code === 3 ? 0 : code;
+    materials.src.uniforms.mode.value = onSource;
+    materials.flow.uniforms.mode.value = onSource;
+    materials.tgt.uniforms.mode.value = onTarget;
+    materials.ghost.uniforms.mode.value = onTarget;
     ui.colorbar.style.display = code === 2 ? "block" : "none";
     layoutLabels();
   }

@@ -290,6 +290,11 @@ class Config:
     skeleton puts a limb's base joint (:func:`ncflow.skeleton.suggest.suggest_skeleton`); ``choose``: both
     suggested, the one whose searched pose explains the target best kept (:func:`ncflow.matcher.place.place_suggested`;
     measured, not the default: docs/skeleton-suggest.md).
+    ``partial`` (``off`` | ``auto`` | ``on``): match with the partial data terms (:mod:`ncflow.matcher.partial`):
+    the source's parts the target does not show carry no mass, the target's cut borders are not read as
+    the shape's boundary; ``auto``: when the target has open borders the posed source has not (a scan's
+    view, holes). ``off`` (default: measured, the whole terms scored higher on every scan case,
+    docs/scans.md) still reports what a partial target shows (``source_seen.txt``).
     ``working_vertices``: train on a decimated copy of a source larger than this (its vertices a
     subset of the source's, :func:`ncflow.geometry.decimate.decimate`); the outputs and the
     correspondence are computed at full resolution with the trained field. ``none``: train on the
@@ -330,6 +335,7 @@ class Config:
     skeleton_bases: str = setting(
         "ring", choices=("ring", "inside", "choose"), message="{name} must be 'ring', 'inside' or 'choose'"
     )
+    partial: str = setting("off", choices=("auto", "on", "off"), message="{name} must be 'auto', 'on' or 'off'")
     jit_cache: str = setting("auto", check=jit_cache_problem, neutral=True)
     compile_ahead: bool = setting(True, neutral=True)
     setup_cache: bool = setting(True, neutral=True)

@@ -12,6 +12,7 @@ What :func:`write_result` writes into ``DIR`` (docs/architecture.md, "Outputs an
 ``skeleton_target.tgf``    fitted target skeleton (libigl TGF, 1-based)
 ``skeleton_frames.json``   joint positions per frame, parents, names, times
 ``skeleton_source.tgf``    the source skeleton ncflow suggested, when none was given
+``source_seen.txt``        per source vertex how much the target shows it, in [0, 1] (1: all; a scan's far side 0)
 ``metrics.json``           the caller's metrics dict, plus ``frame_times``
 =========================  ==================================================================
 
@@ -74,6 +75,7 @@ from ncflow.io.ground_truth import read_index_file
 from ncflow.io.meshes import load_mesh, save_mesh
 from ncflow.io.points import is_point_cloud_file, load_points, load_target, save_target
 from ncflow.io.skeletons import load_skeleton, save_skeleton
+from ncflow.io.vertex_arrays import read_vertex_array
 
 CONTRACT_FILES = (
     "deformed_source.ply",
@@ -85,6 +87,7 @@ CONTRACT_FILES = (
     "skeleton_target.tgf",
     "skeleton_frames.json",
     "skeleton_source.tgf",
+    "source_seen.txt",
     "metrics.json",
     "target.ply",
 )
@@ -116,6 +119,8 @@ class ResultFolder:
         animation: the path of ``animation.glb`` of a folder read back (None before it is written).
         skeleton_source: the source skeleton ncflow suggested because none was given, written as
             ``skeleton_source.tgf`` (None: a skeleton was given, nothing written).
+        source_seen: (Vs,) how much the target shows each source vertex, in [0, 1]
+            (:mod:`ncflow.matcher.partial`), written as ``source_seen.txt`` (None: not written).
     """
 
     deformed_source: Float[np.ndarray, "Vs 3"]
@@ -131,6 +136,7 @@ class ResultFolder:
     target_faces: Int[np.ndarray, "Ft 3"] | None = None
     animation: Path | None = None
     skeleton_source: Skeleton | None = None
+    source_seen: Float[np.ndarray, " Vs"] | None = None
 
     @property
     def map_face(self) -> np.ndarray:
@@ -256,6 +262,12 @@ def _checked(r: ResultFolder) -> ResultFolder:
                 f"got {sk_frames.shape}"
             )
         names = r.skeleton_target.names if names is None else names
+    seen = r.source_seen
+    if seen is not None:
+        seen = np.asarray(seen, np.float64).reshape(-1)
+        check_finite("source_seen", seen)
+        if seen.shape[0] != nv or np.any((seen < 0) | (seen > 1)):
+            raise ResultError(f"source_seen must hold {nv} values in [0, 1]")
     return dataclasses.replace(
         r,
         deformed_source=deformed,
@@ -268,6 +280,7 @@ def _checked(r: ResultFolder) -> ResultFolder:
         joint_names=names,
         target_vertices=target[0],
         target_faces=target[1],
+        source_seen=seen,
     )
 
 
@@ -309,6 +322,8 @@ def _write_files(tmp: Path, r: ResultFolder, clip_seconds: float) -> None:
         write_skeleton_frames_json(tmp / "skeleton_frames.json", r.skeleton_frames, parents, r.joint_names, times)
     if r.skeleton_source is not None:
         save_skeleton(tmp / "skeleton_source.tgf", r.skeleton_source)
+    if r.source_seen is not None:
+        atomic_write_text(tmp / "source_seen.txt", "".join(f"{v:.4f}\n" for v in r.source_seen))
     atomic_write_text(tmp / "metrics.json", dumps_strict(r.metrics))  # finite: checked
 
 
@@ -456,7 +471,18 @@ def read_result(out_dir: str | os.PathLike, *, check_animation: bool = True) -> 
         skeleton_source=load_skeleton(out_dir / "skeleton_source.tgf")
         if (out_dir / "skeleton_source.tgf").exists()
         else None,
+        source_seen=_read_seen(out_dir / "source_seen.txt", nv),
     )
+
+
+def _read_seen(path: Path, nv: int) -> np.ndarray | None:
+    """``source_seen.txt`` (None when absent): ``nv`` numbers in [0, 1]."""
+    if not path.exists():
+        return None
+    seen = np.asarray(read_vertex_array(path, nv, max_columns=1), np.float64).reshape(-1)
+    if np.any((seen < 0) | (seen > 1)):
+        raise InputError("values outside [0, 1]", path)
+    return seen
 
 
 def _read_maps(out_dir: Path, nv: int, n_faces: int) -> dict[str, np.ndarray]:

@@ -34,6 +34,7 @@ from ncflow.geometry.reconstruct import reconstruct_surface
 from ncflow.geometry.repair import Repair
 from ncflow.io.meshes import load_mesh
 from ncflow.io.points import load_target
+from ncflow.matcher.partial import CUT_SHARE
 from ncflow.skeleton import Skeleton, load_skeleton
 from ncflow.skeleton.checks import DEFAULT_TOLERANCES, check_inside_at
 
@@ -127,6 +128,10 @@ SIZE_RATIO_LIMIT = 2.0
 SIZE_RATIO_WARNING = 1.25
 """Beyond this size ratio, either way, a run goes on with a warning (:func:`check_sizes`)."""
 
+PARTIAL_SPAN = 0.3
+"""A target cut open where the source is not (a scan) is a partial view when it spans at least this share of
+the source's diameter (:func:`check_sizes`)."""
+
 
 def size_ratio(src: Mesh, tgt: Mesh) -> float:
     """The target's size relative to the source's: √(target area / source area), in the files' units.
@@ -160,11 +165,16 @@ def check_sizes(src: Mesh, tgt: Mesh) -> list[str]:
     A partial target (a scan seen from one side, with holes) shows less surface but spans the body:
     when the target's area is the smaller while its :func:`diameter` is within
     :data:`SIZE_RATIO_WARNING` of the source's, it is taken for a partial view of one size (a note
-    saying how much it shows), not for another scale.
+    saying how much it shows), not for another scale. A target cut open where the source is not (its
+    open borders longer than the source's by :data:`ncflow.matcher.partial.CUT_SHARE` × √area: a view of a
+    quarter of the body) may span less: down to :data:`PARTIAL_SPAN` of the diameter. A target in other
+    units (1000×, 25.4×, 2.54×) of a whole character is closed and is refused as before.
     """
     ratio = size_ratio(src, tgt)
     across = diameter(tgt.vertices) / max(diameter(src.vertices), 1e-300)
-    if np.isfinite(ratio) and ratio < 1.0 / SIZE_RATIO_WARNING and max(across, 1.0 / across) <= SIZE_RATIO_WARNING:
+    cut_open = open_share(tgt) - open_share(src) > CUT_SHARE
+    lowest = PARTIAL_SPAN if cut_open else 1.0 / SIZE_RATIO_WARNING
+    if np.isfinite(ratio) and ratio < 1.0 / SIZE_RATIO_WARNING and lowest <= across <= SIZE_RATIO_WARNING:
         return [
             f"the target shows about {ratio**2:.0%} of the source's surface area while spanning {across:.2f}x its "
             "diameter: taken for a partial view (a scan from one side, with holes) of the same size"
@@ -183,6 +193,15 @@ def check_sizes(src: Mesh, tgt: Mesh) -> list[str]:
             "ratio): ncflow matches one character at one scale"
         ]
     return []
+
+
+def open_share(mesh: Mesh) -> float:
+    """The length of a mesh's open borders over the square root of its area (0 for a closed surface)."""
+    e = np.concatenate([mesh.faces[:, [0, 1]], mesh.faces[:, [1, 2]], mesh.faces[:, [2, 0]]])
+    e, count = np.unique(np.sort(e, axis=1), axis=0, return_counts=True)
+    e = e[count == 1]
+    length = float(np.linalg.norm(mesh.vertices[e[:, 0]] - mesh.vertices[e[:, 1]], axis=1).sum())
+    return length / np.sqrt(max(float(face_areas(mesh.vertices, mesh.faces).sum()), 1e-300))
 
 
 PRECISION_WARNING = 1e-4

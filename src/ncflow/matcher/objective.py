@@ -45,6 +45,7 @@ from ncflow.losses import (
 )
 from ncflow.matcher.pose_fit import constraint_fit_weights, fit_pose
 from ncflow.matcher.prepare import DTYPE, Setup
+from ncflow.measures.partial import restrict
 from ncflow.measures.registry import get_metric
 from ncflow.optim.mdmm import mdmm_term, soft_constraint_term
 from ncflow.skeleton import Skeleton, rigid_reference, sample_bones
@@ -288,13 +289,16 @@ def objective(
 
 def _data_term(metrics, which, deformed, arrays: Arrays, targets, sigma, sigma_normal, yy) -> Float[Array, ""]:
     """‖X(1) − Y‖² / ⟨Y, Y⟩ in the metric ``metrics[which]``, with ⟨Y, Y⟩ precomputed (``lax.switch``
-    calls a single metric's term directly).
+    calls a single metric's term directly); X(1) restricted to what the target shows (each target a
+    :class:`~ncflow.matcher.targets.TargetMeasure`: its measure and the source's weights ω,
+    :func:`ncflow.measures.partial.restrict`; ω ≡ 1 for a whole target).
     """
 
     def term(name, target, deformed):
         metric = get_metric(name)
-        x = metric.represent(deformed, arrays.topology)
-        return metric.inner(x, x, sigma, sigma_normal) - 2.0 * metric.inner(x, target, sigma, sigma_normal) + yy
+        x = restrict(metric.represent(deformed, arrays.topology), arrays.topology, target.source_weights)
+        y = target.measure
+        return metric.inner(x, x, sigma, sigma_normal) - 2.0 * metric.inner(x, y, sigma, sigma_normal) + yy
 
     branches = [functools.partial(term, name, target) for name, target in zip(metrics, targets, strict=True)]
     return jax.lax.switch(which, branches, deformed) / yy

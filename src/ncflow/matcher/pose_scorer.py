@@ -21,6 +21,7 @@ from jaxtyping import Float, Int
 
 from ncflow.flow.skinning import skinning_weights, surface_skinning_weights, swing_only
 from ncflow.matcher.placement import surface_diracs
+from ncflow.measures.partial import facing_weights
 from ncflow.measures.varifold import Varifold, varifold_inner
 from ncflow.skeleton import Skeleton
 from ncflow.skeleton.dualquat import dq_rotation, dq_translation, quat_mul, quat_normalize, quat_to_matrix
@@ -49,9 +50,14 @@ def skinned(skeleton: Skeleton, weights, x: Varifold, pose: Pose) -> Varifold:
 
 
 def distance(skeleton: Skeleton, pose: Pose, sigma, src, y: Varifold, yy):
-    """The normalised Varifold distance d(X(pose), Y) / ⟨Y, Y⟩ of the skinned Diracs ``src`` = (x, w)."""
+    """The normalised Varifold distance d(X(pose), Y) / ⟨Y, Y⟩ of the skinned Diracs ``src`` = (x, w); against
+    a target seen from one side only the source Diracs facing its camera count
+    (:func:`ncflow.measures.partial.facing_weights`: the far side a single view cannot show is not
+    asked to vanish).
+    """
     x, w = src
     xs = skinned(skeleton, w, x, pose)
+    xs = Varifold(xs.centers, xs.normals, xs.weights * facing_weights(xs.normals, y))
     return (varifold_inner(xs, xs, sigma, 0.5) - 2.0 * varifold_inner(xs, y, sigma, 0.5) + yy) / yy
 
 

@@ -31,6 +31,7 @@ from ncflow.io.fallback import save_result
 from ncflow.io.result import ResultFolder
 from ncflow.matcher.correspondence import correspondence_maps
 from ncflow.matcher.objective import fit_start
+from ncflow.matcher.partial import Shown, shown_share
 from ncflow.matcher.place import Placed
 from ncflow.matcher.placement import Placement
 from ncflow.matcher.prepare import DTYPE, Setup
@@ -59,6 +60,8 @@ class MatchResult:
             coordinates); outputs are moved back along it, so they end on the target as given.
         state: the trained state (networks, pose, multipliers), which a later match may start from
             (``ncflow.match(..., start=result)``).
+        source_seen: (V,) how much the target shows each source vertex, in [0, 1]
+            (:meth:`ncflow.matcher.partial.Shown.seen`; all ones for a whole target).
     """
 
     source: Mesh
@@ -78,6 +81,7 @@ class MatchResult:
     pivot: np.ndarray | None = None
     state: TrainState | None = dataclasses.field(repr=False, default=None)
     skeleton_suggested: bool = False
+    source_seen: np.ndarray | None = None
 
     def flow(
         self, points: np.ndarray, times: np.ndarray | None = None, normals: np.ndarray | None = None
@@ -118,6 +122,7 @@ class MatchResult:
             target_vertices=self.target.vertices,
             target_faces=self.target.faces,
             skeleton_source=self.skeleton if self.skeleton_suggested else None,
+            source_seen=self.source_seen,
         )
 
     def save(self, out_dir: str | os.PathLike, overwrite: bool = False, *, shown=None) -> Path:
@@ -173,11 +178,20 @@ def _versions() -> dict:
 
 
 def build_result(
-    setup: Setup, placed: Placed, trained: Trained, programs: Programs, targets: dict, config, key, timings: dict
+    setup: Setup,
+    placed: Placed,
+    trained: Trained,
+    programs: Programs,
+    targets: dict,
+    config,
+    key,
+    timings: dict,
+    shown: Shown | None = None,
 ) -> MatchResult:
     """Step 6 of a match: flow the full source, refit the pose, interpolate the skeleton, project the
     target, and every metric of ``metrics.json`` (``timings``: what the earlier steps measured; the
-    output phase's seconds, the compile-ahead thread's and the total are added here).
+    output phase's seconds, the compile-ahead thread's and the total are added here); ``shown``: what the
+    target shows (:mod:`ncflow.matcher.partial`), for ``source_seen`` of the flowed source.
 
     Raises:
         TrainingError: the trained flow produced non-finite positions.
@@ -206,6 +220,12 @@ def build_result(
     tgt_faces = None if setup.target_cloud is not None else tgt_r.input_faces  # a cloud: nearest points
     maps = correspondence_maps(src_v, src_r.input_faces, deformed_n, target_points, tgt_faces)
     maps["map_face"] = src_r.face_origin[maps["map_face"]]  # the face of the source as given
+    seen, partial = np.ones(src_v.shape[0]), {"active": False}
+    if shown is not None:
+        seen = shown.seen(
+            deformed_n, setup.source.faces, placed.placement.apply(setup.target_vertices), setup.target_faces
+        )
+        partial = dict(shown.info, flowed_source_shown_share=shown_share(src_v, setup.source.faces, seen))
     pivot = src_v.mean(axis=0)
     stretch = skin_stretch(src_v, deformed_n, setup.skeleton_normalized)
     frames_n = move_back(placed.placement, frames_n, frame_times, pivot)
@@ -213,6 +233,7 @@ def build_result(
     deformed_n = frames_n[-1]
     timings = dict(timings, outputs=time.perf_counter() - t0)
     metrics = _metrics(setup, placed, trained, programs, targets, cfg, g_ep, g_tr, maps, timings, waited, stretch)
+    metrics["partial"] = partial
     return MatchResult(
         source=setup.source,
         target=setup.target,
@@ -231,6 +252,7 @@ def build_result(
         pivot=pivot,
         state=state,
         skeleton_suggested=setup.skeleton_suggested is not None,
+        source_seen=seen,
     )
 
 

@@ -31,9 +31,10 @@ import numpy as np
 
 from ncflow.config import Config, preset, validate_config
 from ncflow.jit.cache import configure_compilation_cache
+from ncflow.matcher.partial import Shown, shown_parts
 from ncflow.matcher.place import Placed, place, place_suggested
 from ncflow.matcher.placement import Placement
-from ncflow.matcher.prepare import prepare, with_joints
+from ncflow.matcher.prepare import Setup, prepare, skinning_width, with_joints
 from ncflow.matcher.programs import Programs, build_programs, check_programs
 from ncflow.matcher.progress import Progress
 from ncflow.matcher.result import MatchResult
@@ -95,6 +96,23 @@ def match(
     return Matcher(source, target, skeleton, config, quiet=quiet, stream=stream, start=start).run()
 
 
+def shown_by(setup: Setup, placed: Placed, config: Config) -> Shown:
+    """What the placed target shows of the working source posed as ``placed`` says (setting ``partial``;
+    :func:`ncflow.matcher.partial.shown_parts`).
+    """
+    return shown_parts(
+        setup.skeleton_normalized,
+        np.asarray(setup.working.vertices),
+        np.asarray(setup.working.faces),
+        setup.source_topology,
+        placed.placement.apply(setup.target_vertices),
+        setup.target_topology,
+        placed.initial_pose,
+        skinning_width(config, setup.skeleton_normalized),
+        config.partial,
+    )
+
+
 def apply_runtime_settings(config: Config) -> None:
     """What a match sets in JAX for the process: the persistent compilation cache of ``config.jit_cache``
     (from the first match on). The options that let pairs share compiled programs are JAX's at its start
@@ -113,7 +131,8 @@ class Matcher:
 
     Attributes:
         config: the validated configuration.
-        setup, programs, placed, targets: what steps 1–4 made.
+        setup, programs, placed, targets: what steps 1–4 made; ``shown``: what the target shows of the
+            source (:func:`shown_by`).
         stages: the stages trained (the configuration's, or a short warm start's last phase).
         timings: their seconds (``setup``, ``placement``, ``tissue``, ``pose_search``, ``target``).
     """
@@ -156,7 +175,15 @@ class Matcher:
             "pose_search": self.placed.pose_search_seconds,
         }
         t1 = time.perf_counter()
-        self.targets = target_measures(self.setup, self.placed, self.stages, self.config, message=self.progress.message)
+        self.shown = shown_by(self.setup, self.placed, self.config)
+        if self.shown.partial:
+            self.progress.message(
+                f"the target shows part of the source ({100 * self.shown.info['source_shown_share']:.0f} % of its "
+                "area)" + (": partial data terms" if self.shown.active else "")
+            )
+        self.targets = target_measures(
+            self.setup, self.placed, self.stages, self.config, message=self.progress.message, shown=self.shown
+        )
         self.timings["target"] = time.perf_counter() - t1
         self.timings["setup"] = time.perf_counter() - t0
 
@@ -193,7 +220,9 @@ class Matcher:
         timings = dict(self.timings, train=train_seconds, per_step=train_seconds / max(trained.steps, 1))
         if programs.ahead:
             timings["compile_ahead_wait"] = waited
-        result = build_result(self.setup, self.placed, trained, programs, self.targets, cfg, k_eval, timings)
+        result = build_result(
+            self.setup, self.placed, trained, programs, self.targets, cfg, k_eval, timings, shown=self.shown
+        )
         for warning in result.metrics["warnings"][len(self.setup.warnings) :]:  # what the training left
             self.progress.message(f"warning: {warning}")
         return result

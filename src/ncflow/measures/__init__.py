@@ -3,6 +3,7 @@
 from ncflow.measures.compression import CompressionReport, compress_normal_cycle, compress_varifold, leverage_scores
 from ncflow.measures.kernels import kernel_matvec, kernel_self_sum, kernel_sum
 from ncflow.measures.normal_cycles import NormalCycle, normal_cycle, normal_cycle_distance, normal_cycle_inner
+from ncflow.measures.partial import restrict, restrict_normal_cycle, restrict_varifold
 from ncflow.measures.registry import METRICS, Metric, get_metric
 from ncflow.measures.varifold import Varifold, varifold, varifold_distance, varifold_inner
 
@@ -22,6 +23,9 @@ __all__ = [
     "normal_cycle",
     "normal_cycle_distance",
     "normal_cycle_inner",
+    "restrict",
+    "restrict_normal_cycle",
+    "restrict_varifold",
     "varifold",
     "varifold_distance",
     "varifold_inner",

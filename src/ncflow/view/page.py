@@ -3,9 +3,10 @@
 The page (docs/view.md) shows the source, the flowed source (animated with a timeline slider and
 play/pause) and the target side by side, or the flowed source over a transparent target; the
 skeleton on or off; colours carried through the correspondence (the source's positions as RGB, or
-a 3-D checker of them, read on the target at the point each target vertex maps to); and, with
+a 3-D checker of them, read on the target at the point each target vertex maps to); with
 ground truth, the target coloured by its geodesic error with a colour bar on the τmax = 0.20 scale
-of docs/evaluation.md.
+of docs/evaluation.md; and for a partial target (a scan), the source coloured by what the target shows
+of it (``source_seen.txt``, :mod:`ncflow.matcher.partial`).
 
 Everything is inside the one file: the page script is three.js and the viewer bundled at build
 time (``viewer/`` at the repository root, esbuild, shipped prebuilt as package data in
@@ -183,8 +184,9 @@ def view_data(
         n_vertices_original, kept, faces, ref}, "target" {the same, positions}, "skeleton"
         {parents, positions (K', J, 3) float32} or None, "error" {values (m,) float32 (NaN: no
         ground truth), colors (m, 3) uint8, colour-bar fields} or None, "animation" {glb (bytes) uint8,
-        keys (K',) int: the clip key of each frame shown} or None}``. Arrays are packed by
-        :func:`encode_array`; positions are quantised in ``bbox``; ``ref`` are the rest source
+        keys (K',) int: the clip key of each frame shown} or None, "seen" {values (n,) uint8: 255 × how
+        much the target shows each kept source vertex (``source_seen.txt``)} or None (all of it)}``.
+        Arrays are packed by :func:`encode_array`; positions are quantised in ``bbox``; ``ref`` are the rest source
         positions normalised to [0, 1] per axis (uint16 of 65535), read on the target at the point
         each target vertex maps to.
     """
@@ -227,7 +229,11 @@ def view_data(
         "skeleton": None,
         "error": None,
         "animation": None,
+        "seen": None,
     }
+    seen = result.source_seen
+    if seen is not None and float(np.min(seen)) < 1.0:  # a partial target: what it shows of the source
+        data["seen"] = {"values": encode_array(np.rint(np.clip(seen[src.kept], 0.0, 1.0) * 255), "uint8")}
     if animation is not None:
         glb, keys = animation
         data["animation"] = {
