@@ -61,19 +61,23 @@ def main(argv=None) -> int:
     tag = (f"_n{args.noise:g}" if args.noise else "") + (f"_o{args.outliers:g}" if args.outliers else "")
     rng = np.random.default_rng(args.seed)
     out_rows = [cloud_row(r, root, args.noise, args.outliers, rng, tag) for r in rows]
-    out = Path(args.out)
+    write_pairs(Path(args.out), out_rows, root)
+    return 0
+
+
+def write_pairs(out: Path, rows: list[dict], root: Path) -> None:
+    """A pairs CSV of ``rows`` whose file cells, relative to ``root``, are written as paths under it."""
     with open(out, "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(out_rows[0]))
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
         w.writeheader()
-        for r in out_rows:
+        for r in rows:
             w.writerow(
                 {
                     k: (str(root / v) if k in ("source", "target", "skeleton", "gt", "target_motion") and v else v)
                     for k, v in r.items()
                 }
             )
-    print(f"{out}: {len(out_rows)} pairs")
-    return 0
+    print(f"{out}: {len(rows)} pairs")
 
 
 if __name__ == "__main__":

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import os
 import sys
 from pathlib import Path
 
@@ -31,6 +32,9 @@ from ncflow.geometry.mesh import face_areas
 from ncflow.io.files import read_npz_arrays
 from ncflow.io.meshes import load_mesh, save_mesh
 from ncflow.synthetic.scans import single_view
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from cloud_pairs import write_pairs  # noqa: E402
 
 CASES = ("view0", "view1", "view2", "quarter", "holes", "noise", "view0_cloud", "holes_noise")
 
@@ -142,18 +146,7 @@ def main(argv=None) -> int:
     for i, r in enumerate(rows):
         rng = np.random.default_rng([args.seed, i])
         out_rows += ([] if args.no_complete else [dict(r)]) + scan_rows(r, root, args.cases, rng)
-    out = Path(args.out)
-    with open(out, "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(out_rows[0]))
-        w.writeheader()
-        for r in out_rows:
-            w.writerow(
-                {
-                    k: (str(root / v) if k in ("source", "target", "skeleton", "gt", "target_motion") and v else v)
-                    for k, v in r.items()
-                }
-            )
-    print(f"{out}: {len(out_rows)} pairs")
+    write_pairs(Path(args.out), out_rows, root)
     return 0
 
 
