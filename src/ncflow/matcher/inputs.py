@@ -32,9 +32,10 @@ from ncflow.geometry.cloud import (
 from ncflow.geometry.mesh import Mesh, face_areas, orientation, repaired_mesh, validate_mesh
 from ncflow.geometry.reconstruct import reconstruct_surface
 from ncflow.geometry.repair import Repair
+from ncflow.geometry.topology import mesh_topology
 from ncflow.io.meshes import load_mesh
 from ncflow.io.points import load_target
-from ncflow.matcher.partial import CUT_SHARE
+from ncflow.matcher.partial import CUT_SHARE, border_share
 from ncflow.skeleton import Skeleton, load_skeleton
 from ncflow.skeleton.checks import DEFAULT_TOLERANCES, check_inside_at
 
@@ -197,11 +198,7 @@ def check_sizes(src: Mesh, tgt: Mesh) -> list[str]:
 
 def open_share(mesh: Mesh) -> float:
     """The length of a mesh's open borders over the square root of its area (0 for a closed surface)."""
-    e = np.concatenate([mesh.faces[:, [0, 1]], mesh.faces[:, [1, 2]], mesh.faces[:, [2, 0]]])
-    e, count = np.unique(np.sort(e, axis=1), axis=0, return_counts=True)
-    e = e[count == 1]
-    length = float(np.linalg.norm(mesh.vertices[e[:, 0]] - mesh.vertices[e[:, 1]], axis=1).sum())
-    return length / np.sqrt(max(float(face_areas(mesh.vertices, mesh.faces).sum()), 1e-300))
+    return border_share(mesh.vertices, mesh_topology(mesh.faces, mesh.n_vertices))
 
 
 PRECISION_WARNING = 1e-4

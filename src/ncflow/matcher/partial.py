@@ -116,10 +116,24 @@ def posed_source(
     return np.asarray(moved.centers, np.float64), np.asarray(moved.normals, np.float64)
 
 
+def border_edges(topology: Topology, keep: Bool[np.ndarray, " V"] | None = None) -> Int[np.ndarray, "n 2"]:
+    """The border edges (one face) whose two ends are ``keep`` (None: all)."""
+    e = np.asarray(topology.edges)[np.asarray(topology.boundary_edges, bool)]
+    return e if keep is None else e[keep[e[:, 0]] & keep[e[:, 1]]]
+
+
+def border_share(
+    vertices: Float[np.ndarray, "V 3"], topology: Topology, keep: Bool[np.ndarray, " V"] | None = None
+) -> float:
+    """The length of the :func:`border_edges` over the square root of the mesh's area (0 when closed)."""
+    e = border_edges(topology, keep)
+    length = float(np.linalg.norm(vertices[e[:, 0]] - vertices[e[:, 1]], axis=1).sum())
+    return length / np.sqrt(max(float(face_areas(vertices, np.asarray(topology.faces)).sum()), 1e-300))
+
+
 def border_points(vertices: Float[np.ndarray, "V 3"], topology: Topology, keep: Bool[np.ndarray, " V"], step: float):
     """(n, 3) points every ``step`` along the border edges whose two ends are ``keep``."""
-    e = np.asarray(topology.edges)[np.asarray(topology.boundary_edges, bool)]
-    e = e[keep[e[:, 0]] & keep[e[:, 1]]]
+    e = border_edges(topology, keep)
     if e.size == 0:
         return np.zeros((0, 3))
     a, b = vertices[e[:, 0]], vertices[e[:, 1]]
@@ -205,11 +219,7 @@ def shown_parts(
             near = cKDTree(posed[sb]).query(target_vertices[tb])[0] < OWN_BORDER * diag
             cut[tb[near]] = False
     cuts = border_points(target_vertices, target_topology, cut, 0.25 * delta)
-    seg = np.asarray(target_topology.edges)[np.asarray(target_topology.boundary_edges, bool)]
-    seg = seg[cut[seg[:, 0]] & cut[seg[:, 1]]]
-    length = float(np.linalg.norm(target_vertices[seg[:, 0]] - target_vertices[seg[:, 1]], axis=1).sum())
-    area = float(face_areas(target_vertices, np.asarray(target_topology.faces)).sum())
-    share = length / np.sqrt(max(area, 1e-300))
+    share = border_share(target_vertices, target_topology, cut)
     info = {"setting": setting, "cut_length_per_sqrt_area": share, "cut_vertices": int(cut.sum())}
     if setting != "on" and share <= CUT_SHARE:
         return Shown.whole(nv, nw, {**info, "active": False})
