@@ -30,7 +30,11 @@ descends) for the pose of the source skeleton whose skinned source best matches 
   are still distinct (scored at the finer σ; several survivors often end in one pose) at the finer
   σ — poses compared without the twists the field drops, which would make one pose look like
   several; the best one initialises the field's pose (and the per-step pose fit); the rest pose is kept
-  when nothing explains the target better.
+  when nothing explains the target better;
+* against a single view the source's Diracs that face away from its camera do not count in the
+  refinement and the scores (:func:`~ncflow.matcher.pose_scorer.distance`), and the score a search
+  returns — the one placements are compared by — also leaves out those hidden behind the view's surface
+  (:func:`seen_scores`): a view of a person's back is told from one of their front by what it hides.
 
 :func:`search_poses` runs a :func:`search_plan` with :func:`beam_search` per search and refines the pooled
 beams (:func:`refine_pooled`).
@@ -73,7 +77,8 @@ class PoseSearchResult:
 
     Attributes:
         pose: the best pose (rotations (J, 4) (w, x, y, z), translation (3,)), float32.
-        score: its normalised data term d(X(pose), Y) / ⟨Y, Y⟩ at the finest σ (lower is better).
+        score: its normalised data term d(X(pose), Y) / ⟨Y, Y⟩ at the finest σ (lower is better; against a
+            single view, what the view hides left out: :func:`seen_scores`).
         rest_score: the same for the rest pose.
         hypotheses: number of poses scored.
     """
@@ -371,7 +376,7 @@ def search_chains(
     at_sigma = np.array(scorer.score_fine(both, scored, sigma, y_fine), np.float64)
     if not at_sigma[0] < at_sigma[1]:
         return found
-    final = float(np.asarray(scorer.score_fine(both, scored, sigma_score, y_fine))[0])
+    final = float(np.asarray(scorer.score_seen(both, scored, sigma_score, y_fine))[0])
     pose = jax.device_put(_picked(scorer.canonical(_picked(both, slice(0, 1))), 0))
     return PoseSearchResult(pose, final, found.rest_score, found.hypotheses + sweeps * sum(g.shape[0] for g in grids))
 
@@ -482,7 +487,18 @@ def refine_pooled(
     only[0] = True
     rest_score = float(np.asarray(scorer.score_fine(rests, only, float(sigmas_refine[-1]), y_fine))[0])
     best = int(np.argmin(final))
+    seen = seen_scores(scorer, _picked(padded, slice(best, best + 1)), pooled, valid.size, y_fine, sigmas_refine[-1])
     if final[best] >= rest_score:
-        return PoseSearchResult(scorer.rest, rest_score, rest_score, n_scored)
+        return PoseSearchResult(scorer.rest, seen[1], seen[1], n_scored)
     pose = jax.device_put(_picked(scorer.canonical(_picked(padded, slice(best, best + 1))), 0))
-    return PoseSearchResult(pose, float(final[best]), rest_score, n_scored)
+    return PoseSearchResult(pose, seen[0], seen[1], n_scored)
+
+
+def seen_scores(scorer: PoseScorer, pose: Pose, pooled: Pose, n_rows: int, y_fine, sigma) -> tuple[float, float]:
+    """The scores of ``pose`` (a stack of one) and of the rest pose at ``sigma`` with what a view hides
+    left out (``PoseScorer.score_seen``; the plain scores for a target that is not a view), in the
+    ``n_rows`` shape of ``pooled``: the scores placements are compared by.
+    """
+    rows = _completed(_stacked(pose, scorer.rest_stack), pooled)
+    s = np.asarray(scorer.score_seen(rows, np.arange(n_rows) < 2, float(sigma), y_fine), np.float64)
+    return float(s[0]), float(s[1])

@@ -20,6 +20,7 @@ the data term (no gradient flows to them).
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
@@ -72,8 +73,49 @@ def facing_weights(normals: Float[Array, "N 3"], y: Varifold) -> Float[Array, " 
     (h the smoothstep: 0 facing away from the camera, 1 facing it, a ramp across grazing angles);
     otherwise (a closed or nearly closed target) every weight is 1. Differentiable in ``normals``.
     """
+    c, strength = view_direction(y)
+    u = jnp.clip((normals @ c + 0.4) / 0.4, 0.0, 1.0)
+    return jnp.where(strength > VIEW_STRENGTH, u * u * (3.0 - 2.0 * u), 1.0)
+
+
+def view_direction(y: Varifold) -> tuple[Float[Array, " 3"], Float[Array, ""]]:
+    """The unit camera direction ĉ of a target Varifold ``y`` seen from one side, and the length of its
+    area-weighted mean unit normal c (0 for a closed surface; a view when over :data:`VIEW_STRENGTH`).
+
+    A depth camera sees the faces that face it: ĉ maximises Σ_j b_j log s(8 n_j · ĉ) (s the logistic
+    function; every normal on the camera's side, the grazing ones at the silhouette included), 30 steps of
+    ascent from c / |c|. On the humanoid's three views ĉ is 4–5° from the true camera direction, c 9–14°.
+    """
     total = jnp.maximum(jnp.sum(y.weights), 1e-30)
     c = jnp.sum(y.weights[:, None] * y.normals, axis=0) / total
     strength = jnp.linalg.norm(c)
-    u = jnp.clip((normals @ (c / jnp.maximum(strength, 1e-30)) + 0.4) / 0.4, 0.0, 1.0)
-    return jnp.where(strength > VIEW_STRENGTH, u * u * (3.0 - 2.0 * u), 1.0)
+
+    def step(_, d):
+        g = jnp.sum((y.weights * jax.nn.sigmoid(-8.0 * (y.normals @ d)))[:, None] * y.normals, axis=0) / total
+        d = d + 2.0 * g
+        return d / jnp.maximum(jnp.linalg.norm(d), 1e-30)
+
+    return jax.lax.fori_loop(0, 30, step, c / jnp.maximum(strength, 1e-30)), strength
+
+
+def occlusion_cover(
+    points: Float[Array, "N 3"],
+    occluders: Float[Array, "M 3"],
+    present: Float[Array, " M"],
+    direction: Float[Array, " 3"],
+    spacing: Float[ArrayLike, ""],
+) -> Float[Array, " N"]:
+    """How much of the surface samples ``occluders`` (``present`` 1, padding 0) lies in front of each of
+    ``points`` seen along ``direction`` (towards the camera): Σ_j exp(−|P(x_j − x_i)|² / r²) s((z_j − z_i − m) / w),
+    P the projection across the direction, z the depth along it, s the logistic function, r = 1.5 h,
+    m = 2.5 h, w = 0.5 h for a sample spacing h. Samples of the same sheet (within m in depth) do not occlude;
+    one sample squarely in front gives a cover of about 1. Differentiable; written by hand (a soft z-buffer
+    over a few hundred samples: no library renders a point set differentiably on the CPU).
+    """
+    h = jnp.asarray(spacing, points.dtype)
+    z_i, z_j = points @ direction, occluders @ direction
+    flat_i = points - z_i[:, None] * direction
+    flat_j = occluders - z_j[:, None] * direction
+    d2 = jnp.sum(flat_i**2, axis=1)[:, None] + jnp.sum(flat_j**2, axis=1)[None, :] - 2.0 * flat_i @ flat_j.T
+    ahead = jax.nn.sigmoid((z_j[None, :] - z_i[:, None] - 2.5 * h) / (0.5 * h))
+    return jnp.sum(jnp.exp(-d2 / (1.5 * h) ** 2) * ahead * present[None, :], axis=1)
