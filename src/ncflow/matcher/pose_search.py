@@ -31,10 +31,8 @@ descends) for the pose of the source skeleton whose skinned source best matches 
   σ — poses compared without the twists the field drops, which would make one pose look like
   several; the best one initialises the field's pose (and the per-step pose fit); the rest pose is kept
   when nothing explains the target better;
-* against a single view the source's Diracs that face away from its camera do not count in the
-  refinement and the scores (:func:`~ncflow.matcher.pose_scorer.distance`), and the score a search
-  returns — the one placements are compared by — also leaves out those hidden behind the view's surface
-  (:func:`seen_scores`): a view of a person's back is told from one of their front by what it hides.
+* against a single view, the score a search returns (placements are compared by it) leaves out what the
+  view hides (:func:`seen_scores`): a view of a person's back is told from one of their front by it.
 
 :func:`search_poses` runs a :func:`search_plan` with :func:`beam_search` per search and refines the pooled
 beams (:func:`refine_pooled`).
@@ -495,10 +493,8 @@ def refine_pooled(
 
 
 def seen_scores(scorer: PoseScorer, pose: Pose, pooled: Pose, n_rows: int, y_fine, sigma) -> tuple[float, float]:
-    """The scores of ``pose`` (a stack of one) and of the rest pose at ``sigma`` with what a view hides
-    left out (``PoseScorer.score_seen``; the plain scores for a target that is not a view), in the
-    ``n_rows`` shape of ``pooled``: the scores placements are compared by.
+    """The scores of ``pose`` (a stack of one) and of the rest pose at ``sigma``, what a view hides left out
+    (``PoseScorer.score_seen``; plain when the target is no view), in the ``n_rows`` shape of ``pooled``.
     """
-    rows = _completed(_stacked(pose, scorer.rest_stack), pooled)
-    s = np.asarray(scorer.score_seen(rows, np.arange(n_rows) < 2, float(sigma), y_fine), np.float64)
+    s = scorer.score_seen(_completed(_stacked(pose, scorer.rest_stack), pooled), np.arange(n_rows) < 2, sigma, y_fine)
     return float(s[0]), float(s[1])
