@@ -21,7 +21,7 @@ from jaxtyping import Float, Int
 
 from ncflow.flow.skinning import skinning_weights, surface_skinning_weights, swing_only
 from ncflow.matcher.placement import surface_diracs
-from ncflow.measures.partial import VIEW_STRENGTH, facing_weights, occlusion_cover, view_direction
+from ncflow.measures.partial import VIEW_STRENGTH, facing_weights, occlusion_cover, view_direction, view_strength
 from ncflow.measures.varifold import Varifold, varifold_inner
 from ncflow.skeleton import Skeleton
 from ncflow.skeleton.dualquat import dq_rotation, dq_translation, quat_mul, quat_normalize, quat_to_matrix
@@ -263,6 +263,13 @@ class PoseScorer:
         self.pose_joints = jax.jit(jax.vmap(lambda p: joint_positions(forward_kinematics(skeleton, p))))
         # beams that differ only by twists the score cannot see are one pose: canonical, the same joints
         self.canonical = jax.jit(jax.vmap(lambda p: unit_swing(skeleton, p)))
+
+    def score_compared(self, poses: Pose, active, sigma: float, y: Varifold):
+        """The scores placements are compared by: :attr:`score_seen`'s against a single view, else
+        :attr:`score_fine`'s (the same numbers; a target that is no view does not compile the other program).
+        """
+        score = self.score_seen if float(view_strength(y)) > VIEW_STRENGTH else self.score_fine
+        return score(poses, active, sigma, y)
 
     def target_diracs(self, target_vertices, target_faces) -> tuple[Varifold, Varifold]:
         """The target's Diracs for the search and for the refinement."""

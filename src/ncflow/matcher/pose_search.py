@@ -374,7 +374,7 @@ def search_chains(
     at_sigma = np.array(scorer.score_fine(both, scored, sigma, y_fine), np.float64)
     if not at_sigma[0] < at_sigma[1]:
         return found
-    final = float(np.asarray(scorer.score_seen(both, scored, sigma_score, y_fine))[0])
+    final = float(np.asarray(scorer.score_compared(both, scored, sigma_score, y_fine))[0])
     pose = jax.device_put(_picked(scorer.canonical(_picked(both, slice(0, 1))), 0))
     return PoseSearchResult(pose, final, found.rest_score, found.hypotheses + sweeps * sum(g.shape[0] for g in grids))
 
@@ -493,8 +493,7 @@ def refine_pooled(
 
 
 def seen_scores(scorer: PoseScorer, pose: Pose, pooled: Pose, n_rows: int, y_fine, sigma) -> tuple[float, float]:
-    """The scores of ``pose`` (a stack of one) and of the rest pose at ``sigma``, what a view hides left out
-    (``PoseScorer.score_seen``; plain when the target is no view), in the ``n_rows`` shape of ``pooled``.
-    """
-    s = scorer.score_seen(_completed(_stacked(pose, scorer.rest_stack), pooled), np.arange(n_rows) < 2, sigma, y_fine)
+    """``PoseScorer.score_compared`` at ``sigma`` of ``pose`` (a stack of one) and the rest pose, ``pooled``'s shape."""
+    rows = _completed(_stacked(pose, scorer.rest_stack), pooled)
+    s = scorer.score_compared(rows, np.arange(n_rows) < 2, sigma, y_fine)
     return float(s[0]), float(s[1])

@@ -78,16 +78,28 @@ def facing_weights(normals: Float[Array, "N 3"], y: Varifold) -> Float[Array, " 
     return jnp.where(strength > VIEW_STRENGTH, u * u * (3.0 - 2.0 * u), 1.0)
 
 
+def view_strength(y: Varifold) -> Float[Array, ""]:
+    """The length of ``y``'s area-weighted mean unit normal: 0 for a closed surface, 0.5 for half a sphere; a
+    view from one side when over :data:`VIEW_STRENGTH`.
+    """
+    return jnp.linalg.norm(_mean_normal(y)[0])
+
+
+def _mean_normal(y: Varifold):
+    """(c, Σ b_j): ``y``'s area-weighted mean unit normal and its total weight."""
+    total = jnp.maximum(jnp.sum(y.weights), 1e-30)
+    return jnp.sum(y.weights[:, None] * y.normals, axis=0) / total, total
+
+
 def view_direction(y: Varifold) -> tuple[Float[Array, " 3"], Float[Array, ""]]:
-    """The unit camera direction ĉ of a target Varifold ``y`` seen from one side, and the length of its
-    area-weighted mean unit normal c (0 for a closed surface; a view when over :data:`VIEW_STRENGTH`).
+    """The unit camera direction ĉ of a target Varifold ``y`` seen from one side, and its
+    :func:`view_strength` |c| (c its area-weighted mean unit normal).
 
     A depth camera sees the faces that face it: ĉ maximises Σ_j b_j log s(8 n_j · ĉ) (s the logistic
     function; every normal on the camera's side, the grazing ones at the silhouette included), 30 steps of
     ascent from c / |c|. On the humanoid's three views ĉ is 4–5° from the true camera direction, c 9–14°.
     """
-    total = jnp.maximum(jnp.sum(y.weights), 1e-30)
-    c = jnp.sum(y.weights[:, None] * y.normals, axis=0) / total
+    c, total = _mean_normal(y)
     strength = jnp.linalg.norm(c)
 
     def step(_, d):
