@@ -28,7 +28,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from fingers import PALM, finger_groups  # noqa: E402
+from fingers import PALM, finger_joint_errors  # noqa: E402
 
 WRONG = 0.3
 
@@ -57,11 +57,7 @@ def run(root: Path, out: Path, names: list[str]) -> None:
         pose = placed.pose_search.pose
         found = np.asarray(joint_positions(forward_kinematics(setup.skeleton_normalized, pose)))
         err = np.linalg.norm(found - truth, axis=1)
-        labels, group = finger_groups(skeleton.parents, skeleton.names)
-        fingers = {}
-        for k, label in enumerate(labels):
-            joints = np.flatnonzero(group == k) + 1  # bone b ends at joint b + 1
-            fingers[label] = float(err[joints].max()) if joints.size else None
+        fingers = finger_joint_errors(err, skeleton.parents, skeleton.names)
         results[name] = {
             "mean": float(err.mean()),
             "max": float(err.max()),

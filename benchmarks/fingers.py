@@ -108,6 +108,16 @@ def finger_groups(parents, names=None) -> tuple[list[str], np.ndarray]:
     return labels + [PALM], group[1:]
 
 
+def finger_joint_errors(errors, parents, names=None) -> dict:
+    """The largest joint error of each group of :func:`finger_groups`: (J,) per-joint errors → {group name:
+    the largest error over the joints its bones end at (bone b ends at joint b + 1), or None without one}.
+    """
+    labels, group = finger_groups(parents, names)
+    errors = np.asarray(errors, dtype=np.float64)
+    joints = [np.flatnonzero(group == k) + 1 for k in range(len(labels))]
+    return {label: float(errors[j].max()) if j.size else None for label, j in zip(labels, joints, strict=True)}
+
+
 def vertex_groups(points: np.ndarray, positions: np.ndarray, parents, bone_group: np.ndarray) -> np.ndarray:
     """The group of the bone nearest each point: (n, 3) points, (J, 3) joints, (J,) parents, (J − 1,) groups → (n,)."""
     parents = np.asarray(parents, dtype=np.int64)

@@ -28,7 +28,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from fingers import finger_groups  # noqa: E402
+from fingers import finger_joint_errors  # noqa: E402
 
 
 def fingers_off(setup, pose, truth: np.ndarray, skeleton) -> dict:
@@ -39,13 +39,8 @@ def fingers_off(setup, pose, truth: np.ndarray, skeleton) -> dict:
     joints = np.asarray(
         joint_positions(forward_kinematics(setup.skeleton_normalized, swing_only(setup.skeleton_normalized, pose)))
     )
-    err = np.linalg.norm(joints - truth, axis=1)
-    labels, group = finger_groups(skeleton.parents, skeleton.names)
-    return {
-        label: round(float(err[np.flatnonzero(group == k) + 1].max()), 3)
-        for k, label in enumerate(labels)
-        if np.any(group == k)
-    }
+    err = finger_joint_errors(np.linalg.norm(joints - truth, axis=1), skeleton.parents, skeleton.names)
+    return {label: round(e, 3) for label, e in err.items() if e is not None}
 
 
 def fit_to_joints(skeleton, pose, truth: np.ndarray, steps: int = 800, lr: float = 0.01):

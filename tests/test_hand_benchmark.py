@@ -357,3 +357,21 @@ def test_finger_search_counts_the_fingers_beyond_the_bound_never_the_palm():
     pair = {"fingers": {"index": 0.31, "middle": 0.3, "little": None, "thumb": 1.2, "palm": 2.0}}
     assert finger_search.wrong_fingers(pair, 0.3) == ["index", "thumb"]
     assert finger_search.wrong_fingers(pair, 1.5) == []
+
+
+def test_finger_joint_errors_takes_each_fingers_largest_joint_error():
+    """benchmarks/fingers.py: on MANO's tree with fingertips, each finger's value is the largest error of the
+    joints its bones end at (by hand: index joints 1, 2, 3 and its tip 16); the wrist's own error counts for
+    no group; a group without bones is None."""
+    fingers = _load("fingers")
+    parents = np.array(fingers.MANO_PARENTS + (3, 6, 9, 12, 15))  # the five tips after MANO's 16 joints
+    errors = np.zeros(parents.size)
+    errors[0] = 9.0  # the wrist: no bone ends there
+    errors[[1, 2, 3, 16]] = [0.1, 0.4, 0.2, 0.3]  # index
+    errors[[13, 14, 15, 20]] = [0.05, 0.02, 0.5, 0.01]  # thumb
+    out = fingers.finger_joint_errors(errors, parents)
+    assert out["index"] == 0.4 and out["thumb"] == 0.5
+    assert out["middle"] == out["little"] == out["ring"] == 0.0
+    assert out["palm"] == 0.1  # the metacarpal bones (wrist -> 1, 4, 7, 10, 13) end at the chains' first joints
+    two = fingers.finger_joint_errors(np.array([5.0, 0.7, 0.2]), [-1, 0, 0])  # two one-bone fingers, no palm bone
+    assert two == {"finger1": 0.7, "finger2": 0.2, "palm": None}
