@@ -16,6 +16,7 @@ from ncflow.losses import (
     bone_endpoint_constraint,
     bone_trajectory_constraint,
     edge_points,
+    leash_energy,
     sample_edges,
     split_stencil,
     surface_distortion,
@@ -331,3 +332,10 @@ def test_bone_constraints_differentiable_float32():
     np.testing.assert_allclose(g[-1], 0.5)
     np.testing.assert_allclose(g[1], 0.5)
     np.testing.assert_allclose(g[0], 0.0)
+
+
+def test_leash_energy_is_the_mean_squared_velocity_over_eps():
+    r = np.random.default_rng(4).normal(size=(3, 7, 3))
+    expected = sum(float(r[k, i] @ r[k, i]) for k in range(3) for i in range(7)) / 21 / 2e-3
+    assert float(leash_energy(jnp.asarray(r), 2e-3)) == pytest.approx(expected, rel=1e-6)
+    assert float(leash_energy(jnp.zeros((2, 4, 3)), 1e-4)) == 0.0

@@ -14,7 +14,7 @@ import pytest
 
 from ncflow.config import apply_overrides, preset, validate_config
 from ncflow.geometry.mesh import Mesh
-from ncflow.matcher.objective import Arrays, Settings, constraint_term, objective
+from ncflow.matcher.objective import LEASH_SAMPLES, Arrays, Settings, constraint_term, objective
 from ncflow.matcher.place import place
 from ncflow.matcher.prepare import DTYPE, prepare
 from ncflow.matcher.stages import build_stages
@@ -313,3 +313,61 @@ def test_the_pose_is_held_in_the_first_phase_only_where_the_limbs_touch():
     assert held_phases(apply_overrides(cfg, ["flow.hold_contact_pose=false"]), "surface") == ()
     one = dataclasses.replace(cfg, phases=cfg.phases[1:])  # a warm frame of a track: one phase, never held
     assert held_phases(one, "surface") == ()
+
+
+class _Linear(eqx.Module):
+    """A stand-in Flow-Net R(x, t) = (1 + t) x Aᵀ + c."""
+
+    a: jax.Array
+    c: jax.Array
+
+    def __call__(self, x, t):
+        return (1.0 + t) * (x @ self.a.T) + self.c
+
+
+def test_the_leash_is_the_ungated_flow_net_at_the_bone_samples(problem):
+    """L_leash = mean over grid times and the first LEASH_SAMPLES samples of each bone of ‖R(x, t_k)‖² / ε,
+    R the Flow-Net before the rigid cores fade it: brute force at the samples the objective draws (they sit in
+    their bones' cores, where the faded Flow-Net is 0, so at the rest pose they do not move); its weight adds
+    exactly w · L_leash to the loss."""
+    from ncflow.flow import time_grid
+    from ncflow.skeleton import sample_bones
+
+    cfg, arrays, st, target, yy, s, params = _first_stage(problem)
+    assert cfg.flow.rigid_core > 0
+    rng = np.random.default_rng(0)
+    net = _Linear(jnp.asarray(0.01 * rng.normal(size=(3, 3)), DTYPE), jnp.asarray([0.002, -0.001, 0.003], DTYPE))
+    p = eqx.tree_at(lambda q: q.flow.residual, params, net)
+    key, lam = jax.random.key(3), jnp.zeros((2, 2), DTYPE)
+    on = dataclasses.replace(s, leash_weight=0.5)
+    total_on, aux_on = eqx.filter_jit(lambda q: stage_objective(q, arrays, on, st, target, yy, lam, key))(p)
+    total_off, aux_off = eqx.filter_jit(lambda q: stage_objective(q, arrays, s, st, target, yy, lam, key))(p)
+
+    kb = jax.random.split(key, 3)[0]
+    bones = np.asarray(
+        sample_bones(
+            arrays.skeleton, kb, s.n_bone_samples, radius=arrays.radii, axial_range=arrays.ranges, dtype=DTYPE
+        ).points
+    )[:, :LEASH_SAMPLES].reshape(-1, 3)
+    a, c = np.asarray(net.a, np.float64), np.asarray(net.c, np.float64)
+    times = np.asarray(time_grid(s.n_times), np.float64)
+    expected = np.mean([np.sum(((1 + t) * bones @ a.T + c) ** 2, axis=1) for t in times]) / s.eps
+    assert float(aux_on["leash"]) == pytest.approx(expected, rel=1e-4)
+    assert float(aux_off["leash"]) == 0.0  # weight 0: not computed
+    assert float(total_on) - float(total_off) == pytest.approx(0.5 * expected, rel=1e-3)
+    assert float(aux_on["data"]) == float(aux_off["data"])
+
+
+def test_the_leash_setting():
+    cfg = _config()
+    assert cfg.flow.leash >= 0
+    assert Settings.from_config(_config(**{"flow.leash": 0.3}), "varifold", 10, 0).leash_weight == 0.3
+    # without the skeleton-driven field there is no Flow-Net to hold near the bones
+    assert (
+        Settings.from_config(_config(**{"flow.leash": 0.3, "flow.skinning": "false"}), "varifold", 10, 0).leash_weight
+        == 0.0
+    )
+    from ncflow.errors import InputError
+
+    with pytest.raises(InputError, match="leash"):
+        _config(**{"flow.leash": -1})

@@ -33,6 +33,8 @@ All terms take *flowed grid states* as produced by :func:`ncflow.flow.integrate`
   ‖s − s̄‖²; the release averages over the three coordinates as well (its value is 1/3 of ours),
   so a tolerance ε transferred from the release must be multiplied by 3 (release ε = 1e-4 ↔ 3e-4
   here).
+* Leash, L_leash (:func:`leash_energy`; not in the paper): the mean squared Flow-Net velocity at
+  the flowed bone samples over ε (:func:`ncflow.matcher.objective.leash_term` evaluates the network).
 """
 
 from __future__ import annotations
@@ -100,6 +102,12 @@ def tissue_distortion(states: Float[ArrayLike, "T four_n 3"], delta: float = DEF
     """
     _, frames = split_stencil(states)
     return jnp.mean(tissue_frame_energy(frames[1:], delta))
+
+
+def leash_energy(velocities: Float[ArrayLike, "T n 3"], eps: float) -> Float[Array, ""]:
+    """L_leash = mean over times and points of ‖r‖² / ε for Flow-Net velocities r (T, n, 3) at the bone samples."""
+    r = jnp.asarray(velocities)
+    return jnp.mean(jnp.sum(r * r, axis=-1)) / eps
 
 
 # ----------------------------------------------------------------------------------------------

@@ -4,11 +4,12 @@ Per step one point set is flowed through the fixed-grid integrator: all source v
 bone samples (``sampling.bone_samples`` per bone) and a fresh tissue stencil (4 points per tissue
 sample, :func:`ncflow.tissue.sample_tissue` + :func:`ncflow.losses.tissue_stencil`). The objective is
 
-    L = d(X(1), Y)/⟨Y, Y⟩ + μ_surf L_surf + μ_soft L_soft + C(g),
+    L = d(X(1), Y)/⟨Y, Y⟩ + μ_surf L_surf + μ_soft L_soft + C(g) + μ_leash L_leash,
 
 with the data term relative to the target's self-energy (so one set of weights works across
 meshes, scales and σ), L_surf the ARAP term against the GSO-Net on ``sampling.surface_edges``
-random edges (:func:`ncflow.losses.surface_distortion`), L_soft the tissue stencil term, and C the
+random edges (:func:`ncflow.losses.surface_distortion`), L_soft the tissue stencil term, L_leash the
+Flow-Net's size at the bone samples (:func:`leash_term`, weight ``flow.leash``), and C the
 bone-constraint term. With MDMM, C = w · (c_EP · M(g^EP, λ^EP) + c_TR · τ · M(g^TR, λ^TR)) with
 M = :func:`ncflow.optim.mdmm.mdmm_term` (mean over bones) at the level margin · ε; with soft
 constraints (the ARC-Flow baseline) C = w_soft · (c_EP mean(g^EP/ε) + c_TR τ mean(g^TR/ε)).
@@ -38,6 +39,7 @@ from ncflow.jit.buckets import bucket, pad_mesh
 from ncflow.losses import (
     bone_constraints,
     edge_points,
+    leash_energy,
     sample_edges,
     surface_distortion,
     tissue_distortion,
@@ -80,6 +82,7 @@ class Settings:
     soft_weight: float
     surface_weight: float
     tissue_weight: float
+    leash_weight: float = 0.0
 
     @classmethod
     def from_config(cls, config, metrics: str | tuple[str, ...], n_edges_total: int, n_centroids: int) -> Settings:
@@ -105,6 +108,7 @@ class Settings:
             soft_weight=c.soft_weight,
             surface_weight=config.weights.surface,
             tissue_weight=config.weights.tissue,
+            leash_weight=config.flow.leash if config.flow.skinning else 0.0,
         )
 
 
@@ -230,7 +234,7 @@ def objective(
         settings: the configuration's numbers.
 
     Returns:
-        (L, aux) with aux: ``loss``, ``data``, ``surface``, ``tissue``, ``constraint``, ``g_ep`` (B,),
+        (L, aux) with aux: ``loss``, ``data``, ``surface``, ``tissue``, ``constraint``, ``leash``, ``g_ep`` (B,),
         ``g_tr`` (B,), ``pose`` (the fitted pose) and ``watch`` (2,) = (data term, max_k g_k/ε).
     """
     s = settings
@@ -272,19 +276,46 @@ def objective(
     reference = rigid_reference(arrays.skeleton, pose, bones, times, s.interp)
     g_ep, g_tr = bone_constraints(flowed_bones, reference)
     cons = constraint_term(g_ep, g_tr, lam, phase_weights, s)
-    total = data + s.surface_weight * surf_loss + s.tissue_weight * soft + cons
+    leash = leash_term(params.flow, flowed_bones, times, s.eps) if s.leash_weight else jnp.zeros((), DTYPE)
+    total = data + s.surface_weight * surf_loss + s.tissue_weight * soft + cons + s.leash_weight * leash
     aux = {
         "loss": total,
         "data": data,
         "surface": surf_loss,
         "tissue": soft,
         "constraint": cons,
+        "leash": leash,
         "g_ep": g_ep,
         "g_tr": g_tr,
         "pose": pose,
         "watch": jnp.stack([data, jnp.maximum(jnp.max(g_ep), jnp.max(g_tr)) / s.eps]),
     }
     return total, aux
+
+
+LEASH_SAMPLES = 4
+"""Bone samples per bone that :func:`leash_term` reads."""
+
+
+def leash_term(field, flowed_bones: Float[Array, "T B n 3"], times: Float[Array, " T"], eps: float) -> Float[Array, ""]:
+    """The leash on the Flow-Net: mean over grid times t_k and bone samples of ‖R_θ(x(t_k), t_k)‖² / ε, with
+    R_θ the skeleton-driven field's Flow-Net itself (not faded by the rigid cores) at the flowed bone samples
+    x(t_k) (held fixed: the term moves the network, not the pose).
+
+    Not in the paper. With rigid cores the bones move by the pose alone and a turn of a bone can be undone on
+    the skin by an opposite turn of the Flow-Net around it; the data term cannot tell the two apart, and
+    without cores it is the constraint term on the bone samples that ties the Flow-Net to zero there. The
+    leash restores that tie as a soft term while the cores keep the bones rigid by construction. ε (the
+    constraint tolerance, a mean squared distance) makes a residual of the tolerance's size cost about 1.
+    A field without a Flow-Net (``residual``) has no leash (0). The first :data:`LEASH_SAMPLES` samples of
+    each bone are read (the samples are drawn afresh every step, so this is the same mean in expectation at
+    a quarter of the default 16's cost: one more Flow-Net evaluation per sample and grid time).
+    """
+    residual = getattr(field, "residual", None)
+    if residual is None:
+        return jnp.zeros((), flowed_bones.dtype)
+    at = jax.lax.stop_gradient(flowed_bones[:, :, :LEASH_SAMPLES].reshape(flowed_bones.shape[0], -1, 3))
+    return leash_energy(jax.vmap(residual)(at, times), eps)
 
 
 def _data_term(metrics, which, deformed, arrays: Arrays, targets, sigma, sigma_normal, yy) -> Float[Array, ""]:

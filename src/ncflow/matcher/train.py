@@ -368,7 +368,7 @@ def train(
                 "metric": st.metric,
                 "sigma": st.sigma,
                 "steps": st.steps,
-                **{k: float(aux[k]) for k in ("loss", "data", "surface", "tissue", "constraint")},
+                **{k: float(aux[k]) for k in ("loss", "data", "surface", "tissue", "constraint", "leash")},
             }
         )
     params, pose, opt_state, mult = guard.finish((params, pose, opt_state, mult), done)
