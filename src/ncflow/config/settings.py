@@ -87,9 +87,6 @@ PHASE_RATES = "{table}: learning rates and warm-up must be finite and non-negati
 PHASE_SCALES = "{table}: steps must be ≥ 0 and sigmas positive"
 PHASE_COUNT = "{name} must be an integer in [0, 10**8] (got {value})"
 
-LEASH_DEFAULT = 0.0
-"""``flow.leash``: measured on the Fox and the hard development set (docs/tuning.md, "The Flow-Net on a leash")."""
-
 
 @dataclass(frozen=True)
 class FlowConfig:
@@ -116,7 +113,8 @@ class FlowConfig:
     the samples' radius to 1 at (1 + ``rigid_core``) radii (:func:`ncflow.flow.skinning.core_gate`);
     ``leash`` (with ``skinning``; 0: off) weighs a term that holds the Flow-Net itself, before the cores
     fade it, near zero at the bone samples (:func:`ncflow.matcher.objective.leash_term`), so that the
-    skin next to a bone moves with the bone's pose rather than with a Flow-Net turning against it.
+    skin next to a bone moves with the bone's pose rather than with a Flow-Net turning against it (off by
+    default: it costs MANO hands 0.01–0.03 of geodesic AUC; docs/tuning.md, "The Flow-Net on a leash").
     """
 
     width: int = setting(64, lo=1, hi=1 << 16, message=AT_LEAST_1)
@@ -132,7 +130,7 @@ class FlowConfig:
     pose_lr_scale: float = setting(5.0, lo=0, message=NON_NEGATIVE)
     hold_contact_pose: bool = setting(True)
     rigid_core: float = setting(1.0, lo=0, message=NON_NEGATIVE)
-    leash: float = setting(LEASH_DEFAULT, lo=0, message=NON_NEGATIVE)
+    leash: float = setting(0.0, lo=0, message=NON_NEGATIVE)
     n_times: int = setting(10, lo=2, hi=100_000, message="{name} must be at least 2")
     gso_width: int = setting(32, lo=1, hi=1 << 16)
     gso_depth: int = setting(2, lo=0, hi=1024)

@@ -307,15 +307,12 @@ def leash_term(field, flowed_bones: Float[Array, "T B n 3"], times: Float[Array,
     without cores it is the constraint term on the bone samples that ties the Flow-Net to zero there. The
     leash restores that tie as a soft term while the cores keep the bones rigid by construction. ε (the
     constraint tolerance, a mean squared distance) makes a residual of the tolerance's size cost about 1.
-    A field without a Flow-Net (``residual``) has no leash (0). The first :data:`LEASH_SAMPLES` samples of
+    ``field`` is a skeleton-driven field (its Flow-Net ``residual``). The first :data:`LEASH_SAMPLES` samples of
     each bone are read (the samples are drawn afresh every step, so this is the same mean in expectation at
     a quarter of the default 16's cost: one more Flow-Net evaluation per sample and grid time).
     """
-    residual = getattr(field, "residual", None)
-    if residual is None:
-        return jnp.zeros((), flowed_bones.dtype)
     at = jax.lax.stop_gradient(flowed_bones[:, :, :LEASH_SAMPLES].reshape(flowed_bones.shape[0], -1, 3))
-    return leash_energy(jax.vmap(residual)(at, times), eps)
+    return leash_energy(jax.vmap(field.residual)(at, times), eps)
 
 
 def _data_term(metrics, which, deformed, arrays: Arrays, targets, sigma, sigma_normal, yy) -> Float[Array, ""]:
