@@ -18,6 +18,7 @@ from ncflow.skeleton.reeb import extent, limb_tree, merge_hubs, prune_branches
 from ncflow.skeleton.suggest import (
     MAX_BONE,
     _chain_joints,
+    _grouped_limbs,
     _paired_limbs,
     _sharpest,
     suggest_skeleton,
@@ -151,25 +152,45 @@ def test_finger_bases_at_the_knuckles(seed):
     average (2.7–3.8 % on seeds 0–2), nearer than with the joints on the limbs' first bands, where they
     have left the palm ("ring", 4.8–6.6 %)."""
     ch = make_character("hand", seed)
-    ring, inside = suggest_skeletons(ch.mesh.vertices, ch.mesh.faces)
-    assert (ring.bases, inside.bases) == ("ring", "inside")
+    ring, inside, auto = suggest_skeletons(ch.mesh.vertices, ch.mesh.faces)
+    assert (ring.bases, inside.bases, auto.bases) == ("ring", "inside", "auto")
     assert _base_error(ch, inside.skeleton) < 0.045
     assert _base_error(ch, inside.skeleton) < _base_error(ch, ring.skeleton) - 0.005
+    assert _base_error(ch, auto.skeleton) < _base_error(ch, ring.skeleton) - 0.005  # a hand: "auto" is "inside"
+
+
+@pytest.mark.parametrize("kind", ["humanoid", "quadruped", "hand"])
+def test_auto_bases_move_only_a_hands_fingers(kind):
+    """``bases="auto"``: only limbs in groups of four or more alike ones from one node (a hand's fingers) get
+    their base joints inside; a body's arms, legs, head and tail (groups of two or three) keep them on their
+    first rings, so a generated humanoid's and quadruped's "auto" skeleton is the "ring" one, and a generated
+    hand's is not (its knuckles nearer the true ones: test_finger_bases_at_the_knuckles)."""
+    for seed in (0, 1, 2):
+        ch = make_character(kind, seed)
+        grouped = _grouped_limbs(limb_tree(ch.mesh.vertices, ch.mesh.faces))
+        ring, _, auto = (s.skeleton for s in suggest_skeletons(ch.mesh.vertices, ch.mesh.faces))
+        if kind == "hand":
+            assert len(grouped) >= 4
+            assert auto.n_joints != ring.n_joints or not np.allclose(auto.positions, ring.positions)
+        else:
+            assert grouped == set()
+            np.testing.assert_array_equal(auto.positions, ring.positions)
+            np.testing.assert_array_equal(auto.parents, ring.parents)
 
 
 def test_both_bases_from_one_tree():
     """suggest_skeletons gives the skeletons suggest_skeleton gives for each way of placing the bases (one limb
-    tree for all); "ring" is the default; another name is refused."""
+    tree for all); "auto" is the default; another name is refused."""
     ch = make_character("humanoid", 0)
     v, f = ch.mesh.vertices, ch.mesh.faces
     kw = {"other_poses": [(pose_character(ch, seed=1).vertices, f)]}
     both = suggest_skeletons(v, f, **kw)
-    for found, bases in zip(both, ("ring", "inside"), strict=True):
+    for found, bases in zip(both, ("ring", "inside", "auto"), strict=True):
         alone = suggest_skeleton(v, f, bases=bases, **kw)
         np.testing.assert_array_equal(found.skeleton.positions, alone.skeleton.positions)
         np.testing.assert_array_equal(found.skeleton.parents, alone.skeleton.parents)
-    np.testing.assert_array_equal(suggest_skeleton(v, f, **kw).skeleton.positions, both[0].skeleton.positions)
-    ring, inside = (b.skeleton for b in both)
+    np.testing.assert_array_equal(suggest_skeleton(v, f, **kw).skeleton.positions, both[2].skeleton.positions)
+    ring, inside, _ = (b.skeleton for b in both)
     assert ring.n_joints != inside.n_joints or not np.allclose(ring.positions, inside.positions)
     with pytest.raises(ValueError, match="bases"):
         suggest_skeletons(v, f, bases=("middle",))
@@ -191,7 +212,7 @@ def test_a_second_way_that_fails_is_left_out(monkeypatch):
 
     monkeypatch.setattr(suggest, "_joint_tree", failing)
     found = suggest_skeletons(ch.mesh.vertices, ch.mesh.faces)
-    assert [f.bases for f in found] == ["ring"]
+    assert [f.bases for f in found] == ["ring", "auto"]
     with pytest.raises(InputError, match="zero-length"):
         suggest_skeletons(ch.mesh.vertices, ch.mesh.faces, bases=("inside", "ring"))
 

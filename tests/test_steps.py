@@ -6,12 +6,14 @@ import dataclasses
 import jax
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 import ncflow
 from ncflow.config import apply_overrides, preset, scale_steps
 from ncflow.geometry.barycentric import surface_points
 from ncflow.geometry.mesh import Mesh
 from ncflow.matcher.place import Placed, place
+from ncflow.matcher.placement import Placement
 from ncflow.matcher.prepare import prepare
 from ncflow.matcher.programs import build_programs
 from ncflow.matcher.progress import Progress
@@ -120,7 +122,6 @@ def test_a_short_warm_start_runs_on_the_programs_of_a_full_match(pair, config):
 
 
 def _fake_placed(setup, score: float) -> Placed:
-    from ncflow.matcher.placement import Placement
     from ncflow.matcher.pose_search import PoseSearchResult
     from ncflow.skeleton.kinematics import rest_pose
 
@@ -130,8 +131,10 @@ def _fake_placed(setup, score: float) -> Placed:
 
 def test_a_suggested_skeleton_chosen_by_its_pose(pair, config, monkeypatch):
     """Without a skeleton and with ``skeleton_bases="choose"``, prepare suggests two (base joints on the limbs'
-    first rings, and inside); the matcher keeps the one whose searched pose explains the target best, records
-    both scores, and drops the other; without a pose search the first is placed alone."""
+    first rings, and inside); the first is placed as ``place`` does, the second's pose searched at the first's
+    placement alone (the target moved by it, no placement search), the one whose searched pose explains the
+    target best kept with both scores recorded, and the other dropped; without a pose search the first is
+    placed alone."""
     import ncflow.matcher.place as place_module
     from ncflow.matcher.place import place_suggested
     from ncflow.matcher.prepare import with_joints
@@ -142,26 +145,38 @@ def test_a_suggested_skeleton_chosen_by_its_pose(pair, config, monkeypatch):
     setup = prepare(src, tgt, None, config)
     assert len(setup.alternatives) == 1 and setup.skeleton_suggested["bases"] == "ring"
     assert setup.alternatives[0].skeleton_suggested["bases"] == "inside"
-    scores = {id(setup): 0.7, id(setup.alternatives[0]): 0.4}
+    turned = Placement(
+        Rotation.from_euler("z", 90, degrees=True).as_matrix(), np.array([0.1, 0.0, 0.0]), 0.3, 0.5, True
+    )
+    scores = {"ring": 0.7, "inside": 0.4}
     calls = []
 
     def fake_place(s, cfg, message=None):
-        calls.append(s.skeleton_suggested["bases"])
-        return _fake_placed(s, scores[id(s)])
+        calls.append((s.skeleton_suggested["bases"], cfg.placement, s.target_vertices))
+        placed = _fake_placed(s, scores[s.skeleton_suggested["bases"]])
+        return dataclasses.replace(placed, placement=turned) if cfg.placement == "auto" else placed
 
     monkeypatch.setattr(place_module, "place", fake_place)
     chosen, placed = place_suggested(setup, config)
-    assert calls == ["ring", "inside"] and placed.pose_search.score == 0.4
+    assert [c[:2] for c in calls] == [("ring", "auto"), ("inside", "none")]
+    np.testing.assert_allclose(calls[0][2], setup.target_vertices)
+    np.testing.assert_allclose(calls[1][2], turned.apply(setup.alternatives[0].target_vertices))
+    assert placed.pose_search.score == 0.4 and placed.placement is turned
+    assert placed.trials == ({"angle_degrees": pytest.approx(90.0), "rigid_score": 0.3, "pose_score": 0.4},)
     assert placed.pose_search_seconds == 2 * 1.5 and placed.placement_seconds == 2 * 0.25
     assert chosen.skeleton is setup.alternatives[0].skeleton and chosen.alternatives == ()
+    np.testing.assert_allclose(chosen.target_vertices, setup.alternatives[0].target_vertices)
     info = chosen.skeleton_suggested
     assert info["bases"] == "inside"
     assert [(c["bases"], c["pose_score"]) for c in info["candidates"]] == [("ring", 0.7), ("inside", 0.4)]
     assert [c["n_joints"] for c in info["candidates"]] == [setup.skeleton.n_joints, chosen.skeleton.n_joints]
+    scores["inside"] = 0.9
+    kept, placed = place_suggested(setup, config)
+    assert kept.skeleton is setup.skeleton and placed.placement is turned and placed.pose_search.score == 0.7
     calls.clear()
     off = dataclasses.replace(config, pose_search=False)
     first, _ = place_suggested(setup, off)
-    assert calls == ["ring"] and first is setup
+    assert [c[0] for c in calls] == ["ring"] and first is setup
     n = setup.alternatives[0].skeleton.n_joints
     if n != setup.skeleton.n_joints:
         assert with_joints(setup, n).skeleton is setup.alternatives[0].skeleton

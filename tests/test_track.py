@@ -437,3 +437,34 @@ def test_view_reads_nothing_a_track_file_points_outside(track, tmp_path, frames,
         track_as_result(out)
     assert main(["view", str(out), "--out", str(tmp_path / "v.html")]) == 2
     assert not (tmp_path / "v.html").exists()
+
+
+@pytest.mark.parametrize(("setting", "expected"), [("auto", "auto"), ("ring", "ring"), ("choose", "auto")])
+def test_a_sequence_without_a_skeleton_suggests_one_the_settings_way(tmp_path, monkeypatch, setting, expected):
+    """``ncflow track`` without a skeleton suggests one for all frames with ``skeleton_bases``'s way of
+    placing limbs' base joints ("choose", which needs one target, falls back to the default "auto"), the
+    first, middle and last of five frames showing the other poses."""
+    import dataclasses
+
+    import trimesh
+
+    import ncflow.track.sequence as sequence
+    from ncflow.geometry.mesh import Mesh
+    from ncflow.skeleton import Skeleton
+
+    sphere = trimesh.creation.icosphere(2)
+    paths = []
+    for k in range(5):
+        paths.append(tmp_path / f"frame_{k}.ply")
+        trimesh.Trimesh(sphere.vertices * (1 + 0.1 * k), sphere.faces, process=False).export(paths[-1])
+    seen = {}
+
+    def fake(src, message, others, bases="auto"):
+        seen.update(bases=bases, others=len(others))
+        return Skeleton.from_arrays(np.array([[0, 0, 0], [0, 0, 0.5]], float), np.array([-1, 0])), {}
+
+    monkeypatch.setattr(sequence, "suggested_skeleton", fake)
+    config = dataclasses.replace(preset("fast"), skeleton_bases=setting)
+    source = Mesh(np.asarray(sphere.vertices, float), np.asarray(sphere.faces, np.int64))
+    _, _, suggested, _ = sequence._inputs(source, None, config, lambda text: None, paths)
+    assert suggested and seen == {"bases": expected, "others": 3}

@@ -67,12 +67,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     sug.add_argument(
         "--bases",
-        choices=("ring", "inside"),
-        default="ring",
-        help="where a limb's first joint goes: where the limb leaves the body (ring, the default), or for limbs "
-        "in pairs (arms, legs, fingers) a limb's radius further in, at a shoulder, hip or knuckle (inside); "
-        "ncflow match without --skeleton uses ring unless --set skeleton_bases=inside or =choose (both tried, the "
-        "one whose pose explains the target best kept)",
+        choices=("auto", "ring", "inside"),
+        default="auto",
+        help="where a limb's first joint goes: where the limb leaves the body (ring); for limbs in pairs (arms, "
+        "legs, fingers) a limb's radius further in, at a shoulder, hip or knuckle (inside); or inside for "
+        "fingers and toes only (limbs in groups of four or more alike from one node), ring elsewhere (auto, the "
+        "default, as ncflow match without --skeleton unless --set skeleton_bases=ring, =inside or =choose)",
     )
     sug.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     sug.set_defaults(func=run_suggest)

@@ -291,10 +291,14 @@ class Config:
     (``auto`` | ``on`` | ``off``): after that search, re-pose each finger or limb with the others held
     at a finer kernel scale (:func:`ncflow.matcher.pose_search.search_chains`); ``auto``: where the
     source's limbs touch (bone weights ``"surface"``, whose first phase holds the searched pose).
-    ``skeleton_bases`` (``ring`` | ``inside`` | ``choose``): without a given skeleton, where the suggested
-    skeleton puts a limb's base joint (:func:`ncflow.skeleton.suggest.suggest_skeleton`); ``choose``: both
-    suggested, the one whose searched pose explains the target best kept (:func:`ncflow.matcher.place.place_suggested`;
-    measured, not the default: docs/skeleton-suggest.md).
+    ``skeleton_bases`` (``auto`` | ``ring`` | ``inside`` | ``choose``): without a given skeleton, where the
+    suggested skeleton puts a limb's base joint (:func:`ncflow.skeleton.suggest.suggest_skeleton`): ``ring``
+    where the limb leaves the body, ``inside`` a limb's radius further in for limbs in pairs, ``auto`` (the
+    default) inside for fingers and toes only (limbs in groups of four or more alike), ring elsewhere;
+    ``choose``: ring and inside suggested, the second's pose searched at the first's placement, the one whose
+    pose explains the target best kept (:func:`ncflow.matcher.place.place_suggested`; measured, not the
+    default: docs/skeleton-suggest.md). ``ncflow track`` suggests one skeleton for all frames (``auto`` for
+    ``choose``).
     ``partial`` (``off`` | ``auto`` | ``on``): match with the partial data terms (:mod:`ncflow.matcher.partial`):
     the source's parts the target does not show carry no mass, the target's cut borders are not read as
     the shape's boundary; ``auto``: when the target has open borders the posed source has not (a scan's
@@ -338,7 +342,9 @@ class Config:
     pose_search: bool = setting(True)
     pose_chains: str = setting("off", choices=("auto", "on", "off"), message="{name} must be 'auto', 'on' or 'off'")
     skeleton_bases: str = setting(
-        "ring", choices=("ring", "inside", "choose"), message="{name} must be 'ring', 'inside' or 'choose'"
+        "auto",
+        choices=("ring", "inside", "auto", "choose"),
+        message="{name} must be 'ring', 'inside', 'auto' or 'choose'",
     )
     partial: str = setting("off", choices=("auto", "on", "off"), message="{name} must be 'auto', 'on' or 'off'")
     jit_cache: str = setting("auto", check=jit_cache_problem, neutral=True)

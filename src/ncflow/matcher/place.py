@@ -284,18 +284,28 @@ def place(setup: Setup, config, message=lambda text: None) -> Placed:
 
 def place_suggested(setup: Setup, config, message=lambda text: None) -> tuple[Setup, Placed]:
     """:func:`place` for a problem whose skeleton was suggested in several ways (``setup.alternatives``,
-    :func:`ncflow.matcher.prepare.suggested_skeletons`): each placed and its pose searched, the one whose
-    pose explains the target best (lowest pose-search score, comparable across skeletons: the same source
-    and target Diracs, each posed source's distance to the target) kept, with every candidate's score in
-    ``skeleton_suggested["candidates"]`` and the seconds of all in the returned :class:`Placed`. A problem
-    with one skeleton, or without a pose search, is :func:`place` of ``setup`` (the first suggestion).
+    :func:`ncflow.matcher.prepare.suggested_skeletons`): the first placed and its pose searched as
+    :func:`place` does, each other's pose searched **at the first one's placement** (the facing is the
+    first skeleton's to choose: a skeleton whose joints allow a wrong explanation, a body turned round with
+    its knees bent backwards, cannot win by it), and the one whose pose explains the target best (lowest
+    pose-search score, comparable across skeletons: the same source and target Diracs, each posed source's
+    distance to the target) kept, with every candidate's score in ``skeleton_suggested["candidates"]`` and
+    the seconds of all in the returned :class:`Placed`. A problem with one skeleton, or without a pose
+    search, is :func:`place` of ``setup`` (the first suggestion).
     """
     if not setup.alternatives or not searches_pose(config):
         return setup, place(setup, config, message)
-    tried = []
-    for k, candidate in enumerate((setup, *setup.alternatives)):
-        message(f"searching the pose with suggested skeleton {k + 1} of {len(setup.alternatives) + 1} ...")
-        tried.append((candidate, place(candidate, config, message)))
+    message(f"searching the pose with suggested skeleton 1 of {len(setup.alternatives) + 1} ...")
+    first = place(setup, config, message)
+    tried = [(setup, first)]
+    held = dataclasses.replace(config, placement="none")
+    angle = first.placement.to_dict()["angle_degrees"]
+    for k, alternative in enumerate(setup.alternatives):
+        message(f"searching the pose with suggested skeleton {k + 2} of {len(setup.alternatives) + 1} ...")
+        placed_target = first.placement.apply(alternative.target_vertices)
+        at = place(dataclasses.replace(alternative, target_vertices=placed_target), held, message)
+        trial = {"angle_degrees": angle, "rigid_score": first.placement.score, "pose_score": at.pose_search.score}
+        tried.append((alternative, dataclasses.replace(at, placement=first.placement, trials=(trial,))))
     scores = [placed.pose_search.score for _, placed in tried]
     best = int(np.argmin(scores))
     candidates = [

@@ -128,11 +128,11 @@ def bone_radii(config, skeleton: Skeleton, flesh: Float[np.ndarray, " B"]) -> Fl
     return radii
 
 
-def suggested_skeleton(src, message=lambda text: None, others=()) -> tuple[Skeleton, dict]:
-    """A skeleton suggested for the repaired source, its limbs' base joints where they leave the body
-    (:func:`suggested_skeletons` with ``bases="ring"``).
+def suggested_skeleton(src, message=lambda text: None, others=(), bases: str = "auto") -> tuple[Skeleton, dict]:
+    """A skeleton suggested for the repaired source, its limbs' base joints put as ``bases`` says
+    (:func:`suggested_skeletons`).
     """
-    return suggested_skeletons(src, message, others, bases=("ring",))[0]
+    return suggested_skeletons(src, message, others, bases=(bases,))[0]
 
 
 def suggested_skeletons(src, message=lambda text: None, others=(), bases=BASES) -> list[tuple[Skeleton, dict]]:
@@ -223,7 +223,7 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Setu
         intake(surface, "target", config),
     )
     tgt_f, mesh_warnings = check_meshes(src_c, tgt_c)
-    bases = BASES if config.skeleton_bases == "choose" else (config.skeleton_bases,)
+    bases = BASES[:2] if config.skeleton_bases == "choose" else (config.skeleton_bases,)
     found = [(skel, None)] if skel is not None else suggested_skeletons(src_c, message, [tgt_c], bases)
     warned = []
     for skel, suggested in found:

@@ -9,7 +9,8 @@ Steps 0–3 (the surface, the AGD, the Reeb graph, pruning, hubs and root) are :
    least :data:`LIMB_BONES` bones; joints closer than :data:`MIN_BONE` along a chain are merged. A limb that
    leaves the body at a branch node gets a joint at its base (:func:`_limb_joints`) — where it has left the
    body (``bases="ring"``), or moved into the body by the limb's radius if it is one of a pair
-   (``bases="inside"``, :func:`_base_inward`: a shoulder, a hip, a knuckle) — and alike limbs from one
+   (``bases="inside"``, :func:`_base_inward`: a shoulder, a hip, a knuckle), or the latter only for limbs in
+   groups of four or more (``bases="auto"``, the default: fingers and toes) — and alike limbs from one
    node alike joints (:func:`_alike_limbs_alike`). **Other poses** of the same body (a match's target, a
    track's frames) show where a limb that is straight here articulates: where their alike limbs bend, at the
    same AGD below the tip, this limb is cut too (:func:`_bends_seen`), and then only by length where bones
@@ -58,11 +59,16 @@ LIMB_BONES = 3
 BASE_REACH = 0.7
 """A limb's base joint moves inward by at most this share of its distance (along the limb) from the branch
 node it hangs from (:func:`_base_inward`)."""
-BASES = ("ring", "inside")
-"""Where a limb's base joint goes (:func:`suggest_skeleton`): the first ring outside the body, or a radius
-further in for paired limbs. Neither is right on every body (docs/skeleton-suggest.md): ``ncflow match``
-without a skeleton uses the setting ``skeleton_bases`` ("choose": both tried, the one whose pose explains the
-target best kept)."""
+GROUP = 4
+"""Limbs in groups of at least this many alike ones from one node (a hand's fingers, a foot's toes) get their
+base joints inside with ``bases="auto"``; a body's groups are pairs or threes (two arms and the head, two
+legs and a tail), a hand's five or six (the fingers and the wrist)."""
+BASES = ("ring", "inside", "auto")
+"""Where a limb's base joint goes (:func:`suggest_skeleton`): the first ring outside the body; a radius
+further in for paired limbs; or that only for limbs in groups (:data:`GROUP`: fingers, toes), the first ring
+elsewhere. None is right on every body (docs/skeleton-suggest.md): ``ncflow match`` without a skeleton uses
+the setting ``skeleton_bases`` ("choose": the first two tried, the one whose pose explains the target best
+kept)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -209,6 +215,20 @@ def _paired_limbs(tree: LimbTree) -> set[int]:
     }
 
 
+def _grouped_limbs(tree: LimbTree) -> set[int]:
+    """The limbs that hang from a node with at least :data:`GROUP` − 1 alike limbs beside them
+    (:func:`_alike`): a hand's fingers, a foot's toes — not a pair of arms or legs.
+    """
+    length = [float(arc_lengths(tree.centroids[c])[-1]) for c in tree.chains]
+    limbs = [c for c, chain in enumerate(tree.chains) if len(tree.adj[chain[-1]]) == 1]
+    return {
+        c
+        for c in limbs
+        if sum(r != c and tree.chains[r][0] == tree.chains[c][0] and _alike(length[r], length[c]) for r in limbs)
+        >= GROUP - 1
+    }
+
+
 def _alike_limbs_alike(tree: LimbTree, picks: list[list[int]]) -> list[list[int]]:
     """Limbs that hang from the same node and are alike in length (within :data:`ALIKE`: left and right
     legs, fingers) cut at the same shares of their length as the one of them with the most joints: a
@@ -332,7 +352,7 @@ def suggest_skeleton(
     *,
     name: str | None = None,
     other_poses: Sequence[tuple[Float[np.ndarray, "W 3"], Int[np.ndarray, "G 3"]]] = (),
-    bases: str = "ring",
+    bases: str = "auto",
 ) -> SuggestedSkeleton:
     """A joint tree for a character mesh (module docstring); deterministic.
 
@@ -346,7 +366,9 @@ def suggest_skeleton(
             (:func:`_bends_seen`).
         bases: where a limb's base joint goes (:data:`BASES`): "ring", the limb's first ring outside the
             body; "inside", for a limb with an alike one beside it, a radius further in (:func:`_base_inward`),
-            with the other poses' bends put back where their limbs turn most.
+            with the other poses' bends put back where their limbs turn most; "auto" (the default), that for
+            limbs in groups of :data:`GROUP` or more (:func:`_grouped_limbs`: fingers, toes) and "ring"
+            elsewhere.
 
     Raises:
         InputError: a mesh too small to have a shape (fewer than 20 faces).
@@ -381,10 +403,13 @@ def suggest_skeletons(
 
 def _joint_tree(tree: LimbTree, others: list[LimbTree], name: str | None, bases: str) -> SuggestedSkeleton:
     """Steps 4–5 on the limb tree ``tree``, the other poses' trees showing the bends."""
-    inside = bases == "inside"
+    moved_in = {"ring": lambda _: set(), "inside": _paired_limbs, "auto": _grouped_limbs}[bases](tree)
     bends: dict[int, tuple[int, ...]] = {}
     for other in others:
-        for c, seen in _bends_seen(tree, other, sharpest=inside).items():
+        plain = _bends_seen(tree, other) if bases != "inside" else {}
+        sharp = _bends_seen(tree, other, sharpest=True) if bases == "inside" or moved_in else {}
+        for c in set(plain) | set(sharp):
+            seen = sharp.get(c, ()) if bases == "inside" or c in moved_in else plain.get(c, ())
             bends[c] = tuple(sorted(set(bends.get(c, ())) | set(seen)))
     diag = tree.diag
     picks = []
@@ -397,10 +422,9 @@ def _joint_tree(tree: LimbTree, others: list[LimbTree], name: str | None, bases:
             picks.append(_chain_joints(points, to_leaf, diag, bends.get(c, ())))
     picks = _alike_limbs_alike(tree, picks)
     joints, parents, index = [tree.centroids[tree.root]], [-1], {tree.root: 0}
-    paired = _paired_limbs(tree) if inside else set()
     for c, (chain, picked) in enumerate(zip(tree.chains, picks, strict=True)):
         parent = index[chain[0]]
-        base = len(picked) > 1 and c in paired and len(tree.adj[chain[0]]) > 2
+        base = len(picked) > 1 and c in moved_in and len(tree.adj[chain[0]]) > 2
         for i, k in enumerate(picked):
             node = chain[k]
             if node not in index:

@@ -352,7 +352,8 @@ def _inputs(source, skeleton, config, message, paths) -> tuple[Mesh, Skeleton, b
                     others.append(intake(frame, "frame", config)[0])
             except NcflowError:
                 continue
-        skel, _ = suggested_skeleton(clean, message, others)
+        bases = config.skeleton_bases if config.skeleton_bases != "choose" else "auto"  # one skeleton for all frames
+        skel, _ = suggested_skeleton(clean, message, others, bases)
     return src, skel, suggested, fit_normalization(clean.vertices, clean.faces)
 
 
