@@ -200,33 +200,31 @@ def _alike(a: float, b: float) -> bool:
     return bool(a <= ALIKE * b and b <= ALIKE * a)
 
 
+def _alike_beside(tree: LimbTree) -> dict[int, int]:
+    """For each limb (chain index of a chain ending in a leaf), how many alike limbs (:func:`_alike`) hang from
+    the same node beside it.
+    """
+    length = [float(arc_lengths(tree.centroids[c])[-1]) for c in tree.chains]
+    limbs = [c for c, chain in enumerate(tree.chains) if len(tree.adj[chain[-1]]) == 1]
+    return {
+        c: sum(r != c and tree.chains[r][0] == tree.chains[c][0] and _alike(length[r], length[c]) for r in limbs)
+        for c in limbs
+    }
+
+
 def _paired_limbs(tree: LimbTree) -> set[int]:
     """The limbs (chain indices) that hang from a node with an alike limb beside them (:func:`_alike`): arms,
     legs, fingers — a biped's head has none. (Thickness does not tell them apart: a thumb is as thick at its
     base as a hand's wrist.)
     """
-    length = [float(arc_lengths(tree.centroids[c])[-1]) for c in tree.chains]
-    limbs = [c for c, chain in enumerate(tree.chains) if len(tree.adj[chain[-1]]) == 1]
-    return {
-        c
-        for c in limbs
-        for r in limbs
-        if r != c and tree.chains[r][0] == tree.chains[c][0] and _alike(length[r], length[c])
-    }
+    return {c for c, n in _alike_beside(tree).items() if n >= 1}
 
 
 def _grouped_limbs(tree: LimbTree) -> set[int]:
     """The limbs that hang from a node with at least :data:`GROUP` − 1 alike limbs beside them
     (:func:`_alike`): a hand's fingers, a foot's toes — not a pair of arms or legs.
     """
-    length = [float(arc_lengths(tree.centroids[c])[-1]) for c in tree.chains]
-    limbs = [c for c, chain in enumerate(tree.chains) if len(tree.adj[chain[-1]]) == 1]
-    return {
-        c
-        for c in limbs
-        if sum(r != c and tree.chains[r][0] == tree.chains[c][0] and _alike(length[r], length[c]) for r in limbs)
-        >= GROUP - 1
-    }
+    return {c for c, n in _alike_beside(tree).items() if n >= GROUP - 1}
 
 
 def _alike_limbs_alike(tree: LimbTree, picks: list[list[int]]) -> list[list[int]]:
@@ -404,13 +402,15 @@ def suggest_skeletons(
 def _joint_tree(tree: LimbTree, others: list[LimbTree], name: str | None, bases: str) -> SuggestedSkeleton:
     """Steps 4–5 on the limb tree ``tree``, the other poses' trees showing the bends."""
     moved_in = {"ring": lambda _: set(), "inside": _paired_limbs, "auto": _grouped_limbs}[bases](tree)
+    sharpened = set(range(len(tree.chains))) if bases == "inside" else moved_in  # bends put where limbs turn most
     bends: dict[int, tuple[int, ...]] = {}
     for other in others:
-        plain = _bends_seen(tree, other) if bases != "inside" else {}
-        sharp = _bends_seen(tree, other, sharpest=True) if bases == "inside" or moved_in else {}
-        for c in set(plain) | set(sharp):
-            seen = sharp.get(c, ()) if bases == "inside" or c in moved_in else plain.get(c, ())
-            bends[c] = tuple(sorted(set(bends.get(c, ())) | set(seen)))
+        seen = {
+            sharpest: _bends_seen(tree, other, sharpest=sharpest) if chains else {}
+            for sharpest, chains in ((True, sharpened), (False, set(range(len(tree.chains))) - sharpened))
+        }
+        for c in set(seen[True]) | set(seen[False]):
+            bends[c] = tuple(sorted(set(bends.get(c, ())) | set(seen[c in sharpened].get(c, ()))))
     diag = tree.diag
     picks = []
     for c, chain in enumerate(tree.chains):
