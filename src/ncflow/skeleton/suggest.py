@@ -10,8 +10,10 @@ Steps 0–3 (the surface, the AGD, the Reeb graph, pruning, hubs and root) are :
    leaves the body at a branch node gets a joint at its base (:func:`_limb_joints`) — where it has left the
    body (``bases="ring"``), or moved into the body by the limb's radius if it is one of a pair
    (``bases="inside"``, :func:`_base_inward`: a shoulder, a hip, a knuckle), or the latter only for limbs in
-   groups of four or more (``bases="auto"``, the default: fingers and toes) — and alike limbs from one
-   node alike joints (:func:`_alike_limbs_alike`). **Other poses** of the same body (a match's target, a
+   groups of four or more (``bases="auto"``, the default: fingers and toes; there the knuckle goes
+   :data:`KNUCKLE` of the finger's length in, and the finger gets exactly three bones, cut at
+   :data:`PHALANGES`, :func:`_finger_joints`) — and alike limbs from one node alike joints
+   (:func:`_alike_limbs_alike`). **Other poses** of the same body (a match's target, a
    track's frames) show where a limb that is straight here articulates: where their alike limbs bend, at the
    same AGD below the tip, this limb is cut too (:func:`_bends_seen`), and then only by length where bones
    are still too long.
@@ -63,6 +65,14 @@ GROUP = 4
 """Limbs in groups of at least this many alike ones from one node (a hand's fingers, a foot's toes) get their
 base joints inside with ``bases="auto"``; a body's groups are pairs or threes (two arms and the head, two
 legs and a tail), a hand's five or six (the fingers and the wrist)."""
+KNUCKLE = 0.27
+"""How far inside the palm a finger's knuckle lies with ``bases="auto"``, as a share of the finger's length out
+of the body (from its web ring to its tip): the web lies about halfway along the proximal phalanx. Measured on
+drawn hand skeletons against suggested fingers: MANO 0.34, the generated hands 0.21."""
+PHALANGES = (0.25, 0.62)
+"""Where a finger's two inner joints lie with ``bases="auto"``, as shares of its length out of the body (web ring
+to tip). Measured as :data:`KNUCKLE`: MANO 0.16 and 0.55, the generated hands 0.33 and 0.68 (from the knuckle: a
+proximal phalanx about 40–50 % of the finger, the middle one 30 %)."""
 BASES = ("ring", "inside", "auto")
 """Where a limb's base joint goes (:func:`suggest_skeleton`): the first ring outside the body; a radius
 further in for paired limbs; or that only for limbs in groups (:data:`GROUP`: fingers, toes), the first ring
@@ -157,6 +167,14 @@ def _chain_joints(points: np.ndarray, to_leaf: bool, diag: float, bends: tuple[i
     return picked[1:]
 
 
+def _first_band(arc: np.ndarray, diag: float) -> int:
+    """The first point of a limb's chain (arc lengths ``arc`` from the branch node) at least half
+    :data:`MIN_BONE` from the branch: where the limb has left the body (the last point if none is).
+    """
+    far = np.flatnonzero(arc >= 0.5 * MIN_BONE * diag)
+    return int(far[0]) if far.size else arc.shape[0] - 1
+
+
 def _limb_joints(points: np.ndarray, diag: float, bends: tuple[int, ...] = ()) -> list[int]:
     """:func:`_chain_joints` of a limb that leaves the body at a branch node, with a joint at its base: the
     first point at least half :data:`MIN_BONE` from the branch (the limb's first band: the shoulder, the
@@ -164,15 +182,36 @@ def _limb_joints(points: np.ndarray, diag: float, bends: tuple[int, ...] = ()) -
     node to the base (a clavicle, a pelvis bone, a metacarpal) goes with the body.
     """
     arc = arc_lengths(points)
-    far = np.flatnonzero(arc >= 0.5 * MIN_BONE * diag)
-    base = int(far[0]) if far.size else points.shape[0] - 1
+    base = _first_band(arc, diag)
     if base >= points.shape[0] - 2 or arc[-1] - arc[base] < MIN_BONE * diag:
         return _chain_joints(points, True, diag, bends)
     rest = _chain_joints(points[base:], True, diag, tuple(k - base for k in bends if k > base))
     return [base] + [base + k for k in rest]
 
 
-def _base_inward(tree: LimbTree, chain: list[int], k: int) -> np.ndarray:
+def _finger_joints(points: np.ndarray, diag: float, bends: tuple[int, ...] = ()) -> list[int]:
+    """:func:`_limb_joints` of a finger (a limb of a group, :func:`_grouped_limbs`): a joint at its base and
+    exactly three bones to the tip, as a drawn hand has (knuckle, two inner joints, tip), the inner joints at
+    :data:`PHALANGES` of its length. Cut by length and every bend seen, a MANO finger got four to six bones:
+    joints the pose search can bend where the finger cannot. The bends of the finger itself and of the other
+    poses are not used: a finger's chain has 7–10 bands, and a bend found on them lay 0.1–0.2 of the finger
+    from its joint, further than these shares (generated hands and MANO, docs/skeleton-suggest.md). A chain
+    too short for three bones is cut as any limb (``bends`` are for that).
+    """
+    arc = arc_lengths(points)
+    last = points.shape[0] - 1
+    base = _first_band(arc, diag)
+    if last - base < 3:
+        return _limb_joints(points, diag, bends)
+    share = (arc - arc[base]) / max(float(arc[-1] - arc[base]), 1e-30)
+    cuts = [base]
+    for i, s in enumerate(PHALANGES):
+        room = range(cuts[-1] + 1, last - (len(PHALANGES) - i) + 1)  # leaves a point for every later cut
+        cuts.append(min(room, key=lambda k: abs(share[k] - s)))
+    return [*cuts, last]
+
+
+def _base_inward(tree: LimbTree, chain: list[int], k: int, finger: bool = False) -> np.ndarray:
     """The base joint of a limb (point ``k`` of ``chain``, a limb that leaves the body at a branch node) moved
     back along the limb's axis by the limb's radius there, towards the branch node but at most
     :data:`BASE_REACH` of the way: the limb's first band lies where the limb has left the body (an armpit's,
@@ -180,7 +219,8 @@ def _base_inward(tree: LimbTree, chain: list[int], k: int) -> np.ndarray:
     its axis (the shoulder, the hip, the knuckle), about a radius further in. Only for paired limbs
     (:func:`_paired_limbs`: a biped's neck joint is where the neck leaves the body); where another pose bends
     the limb at or above its base (:func:`_bends_seen`), the band keeps a joint too (the limb is seen to
-    turn there) and this one is added above it.
+    turn there) and this one is added above it. A ``finger``'s base goes :data:`KNUCKLE` of its length in
+    instead of a radius.
     """
     points = _smoothed(tree.centroids[chain])
     arc = arc_lengths(points)
@@ -192,7 +232,8 @@ def _base_inward(tree: LimbTree, chain: list[int], k: int) -> np.ndarray:
     axis = axis / max(float(np.linalg.norm(axis)), 1e-30)
     base = tree.centroids[chain[k]]
     room = float(np.dot(base - points[0], axis))
-    return base - min(radius, BASE_REACH * max(room, 0.0)) * axis
+    depth = KNUCKLE * float(arc[-1] - arc[k]) if finger else radius
+    return base - min(depth, BASE_REACH * max(room, 0.0)) * axis
 
 
 def _alike(a: float, b: float) -> bool:
@@ -412,15 +453,16 @@ def _joint_tree(tree: LimbTree, others: list[LimbTree], name: str | None, bases:
         for c in set(seen[True]) | set(seen[False]):
             bends[c] = tuple(sorted(set(bends.get(c, ())) | set(seen[c in sharpened].get(c, ()))))
     diag = tree.diag
+    fingers = moved_in if bases == "auto" else set()
     picks = []
     for c, chain in enumerate(tree.chains):
         to_leaf = len(tree.adj[chain[-1]]) == 1
         points = _smoothed(tree.centroids[chain])
         if to_leaf and len(tree.adj[chain[0]]) > 2:
-            picks.append(_limb_joints(points, diag, bends.get(c, ())))
+            picks.append((_finger_joints if c in fingers else _limb_joints)(points, diag, bends.get(c, ())))
         else:
             picks.append(_chain_joints(points, to_leaf, diag, bends.get(c, ())))
-    picks = _alike_limbs_alike(tree, picks)
+    picks = [picks[c] if c in fingers else p for c, p in enumerate(_alike_limbs_alike(tree, picks))]  # 3 bones kept
     joints, parents, index = [tree.centroids[tree.root]], [-1], {tree.root: 0}
     for c, (chain, picked) in enumerate(zip(tree.chains, picks, strict=True)):
         parent = index[chain[0]]
@@ -430,8 +472,8 @@ def _joint_tree(tree: LimbTree, others: list[LimbTree], name: str | None, bases:
             if node not in index:
                 at = tree.centroids[node]
                 if i == 0 and base:
-                    inward = _base_inward(tree, chain, k)
-                    if not any(b <= k for b in bends.get(c, ())):
+                    inward = _base_inward(tree, chain, k, finger=c in fingers)
+                    if c in fingers or not any(b <= k for b in bends.get(c, ())):
                         at = inward
                     elif np.linalg.norm(inward - at) > 1e-3 * diag:  # seen bending here: one inside too
                         joints.append(inward)
