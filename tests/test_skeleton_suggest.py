@@ -197,10 +197,10 @@ def _finger_chains(parents) -> list[list[int]]:
 def test_fingers_get_three_bones(seed):
     """``bases="auto"`` on a generated hand, with a second pose whose fingers curl: every finger (and the wrist,
     a limb of the same group) gets a knuckle and exactly three bones, as a drawn hand — cut by length and the
-    second pose's bends they got four to six (32–36 joints here, 25–27 now); the knuckle, middle and end joints of each
-    true finger (matched by its tip) have suggested ones within 6.5, 5.5 and 5 % of the size on average
-    (measured: 4.6–6.0, 4.3–5.0, 2.3–4.1 %; before, the fourth joint from the tip was 11–12 % from the
-    knuckle)."""
+    second pose's bends they got four to six (32–36 joints here, 25–27 now); the knuckle, middle and end
+    joints of each true finger (matched by its tip) have suggested ones within 6.5, 5.5 and 5 % of the size on
+    average (measured: 4.6–6.0, 4.3–5.0, 2.3–4.1 %; before, the fourth joint from the tip was 11–12 % from
+    the knuckle)."""
     ch = make_character("hand", seed)
     v, f = ch.mesh.vertices, ch.mesh.faces
     sk = suggest_skeleton(v, f, other_poses=[(pose_character(ch, seed=seed + 10).vertices, f)]).skeleton

@@ -268,11 +268,11 @@ def _grouped_limbs(tree: LimbTree) -> set[int]:
     return {c for c, n in _alike_beside(tree).items() if n >= GROUP - 1}
 
 
-def _alike_limbs_alike(tree: LimbTree, picks: list[list[int]]) -> list[list[int]]:
+def _alike_limbs_alike(tree: LimbTree, picks: list[list[int]], kept: set[int] = frozenset()) -> list[list[int]]:
     """Limbs that hang from the same node and are alike in length (within :data:`ALIKE`: left and right
     legs, fingers) cut at the same shares of their length as the one of them with the most joints: a
     drawn skeleton gives alike limbs alike joints, and the pose search tries exchanging only limbs of one
-    shape.
+    shape. The limbs in ``kept`` (fingers, cut by :func:`_finger_joints`) keep their cuts.
     """
     out = [list(p) for p in picks]
     arcs = [arc_lengths(tree.centroids[c]) for c in tree.chains]
@@ -281,7 +281,7 @@ def _alike_limbs_alike(tree: LimbTree, picks: list[list[int]]) -> list[list[int]
         group = sorted((c for c in limbs if tree.chains[c][0] == start), key=lambda c: -len(picks[c]))
         for c in group:
             ref = next(r for r in group if _alike(arcs[r][-1], arcs[c][-1]))
-            if ref == c or len(picks[ref]) == len(picks[c]):
+            if ref == c or c in kept or len(picks[ref]) == len(picks[c]):
                 continue
             share = arcs[c] / max(arcs[c][-1], 1e-30)
             cuts = [int(np.argmin(np.abs(share - arcs[ref][k] / arcs[ref][-1]))) for k in picks[ref][:-1]]
@@ -462,7 +462,7 @@ def _joint_tree(tree: LimbTree, others: list[LimbTree], name: str | None, bases:
             picks.append((_finger_joints if c in fingers else _limb_joints)(points, diag, bends.get(c, ())))
         else:
             picks.append(_chain_joints(points, to_leaf, diag, bends.get(c, ())))
-    picks = [picks[c] if c in fingers else p for c, p in enumerate(_alike_limbs_alike(tree, picks))]  # 3 bones kept
+    picks = _alike_limbs_alike(tree, picks, kept=fingers)
     joints, parents, index = [tree.centroids[tree.root]], [-1], {tree.root: 0}
     for c, (chain, picked) in enumerate(zip(tree.chains, picks, strict=True)):
         parent = index[chain[0]]
