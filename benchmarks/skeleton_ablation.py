@@ -54,6 +54,8 @@ def drop_joints(positions: np.ndarray, parents: np.ndarray, drop: set[int]) -> t
 
 
 def _parents_first(positions: np.ndarray, parents: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The joints breadth first (a split bone's middle right after its parent's other children): the order of the
+    skeletons session 45's runs used (``Skeleton.from_arrays`` would sort them too, in another order)."""
     children: dict[int, list[int]] = {}
     for j in range(1, parents.shape[0]):
         children.setdefault(int(parents[j]), []).append(j)
