@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ncflow.geometry.skeleton import Skeleton
+from ncflow.geometry.skeleton import Skeleton, _breadth_first
 from ncflow.io.meshes import load_mesh
 from ncflow.io.skeletons import load_skeleton, save_skeleton
 from ncflow.skeleton.suggest import suggest_skeleton
@@ -29,7 +29,7 @@ from ncflow.skeleton.suggest import suggest_skeleton
 
 def split_long_bones(positions: np.ndarray, parents: np.ndarray, longest: float) -> tuple[np.ndarray, np.ndarray]:
     """(positions, parents) with every bone longer than ``longest`` split at its middle; parents first."""
-    pos, par = [p for p in positions], list(parents)
+    pos, par = list(positions), list(parents)
     for j in range(1, positions.shape[0]):
         if np.linalg.norm(positions[j] - positions[parents[j]]) > longest:
             pos.append(0.5 * (positions[j] + positions[parents[j]]))
@@ -56,12 +56,7 @@ def drop_joints(positions: np.ndarray, parents: np.ndarray, drop: set[int]) -> t
 def _parents_first(positions: np.ndarray, parents: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The joints breadth first (a split bone's middle right after its parent's other children): the order of the
     skeletons session 45's runs used (``Skeleton.from_arrays`` would sort them too, in another order)."""
-    children: dict[int, list[int]] = {}
-    for j in range(1, parents.shape[0]):
-        children.setdefault(int(parents[j]), []).append(j)
-    order = [0]
-    for j in order:
-        order += children.get(j, [])
+    order = _breadth_first(parents)
     index = {j: k for k, j in enumerate(order)}
     return positions[order], np.asarray([-1] + [index[int(parents[j])] for j in order[1:]])
 
