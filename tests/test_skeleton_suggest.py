@@ -137,6 +137,35 @@ def test_limbs_hang_as_in_a_drawn_skeleton(kind, seed):
     assert len(exchangeable_limbs(sk)) >= len(exchangeable_limbs(ch.skeleton))
 
 
+@pytest.mark.parametrize("kind, seed", [("humanoid", 0), ("humanoid", 1), ("humanoid", 2), ("quadruped", 0)])
+def test_no_bone_longer_than_max_bone(kind, seed):
+    """A body's bones are at most :data:`MAX_BONE` of the diagonal also where its limb tree has no band to cut
+    at (the spine between pelvis and chest, a clavicle, the pelvis to a hip): cut evenly there, the true joints
+    have a suggested joint within 2.6 % of the size on average on humanoids (2.1–2.4 %; 2.7–3.4 % with those
+    bones whole)."""
+    ch = make_character(kind, seed)
+    v, f = ch.mesh.vertices, ch.mesh.faces
+    sk = suggest_skeleton(v, f).skeleton
+    parents = np.asarray(sk.parents)
+    bones = np.linalg.norm(sk.positions[1:] - sk.positions[parents[1:]], axis=1)
+    assert bones.max() <= 1.05 * MAX_BONE * np.linalg.norm(np.ptp(v, axis=0))
+    near = np.linalg.norm(ch.skeleton.positions[:, None] - sk.positions[None], axis=-1).min(axis=1)
+    if kind == "humanoid":
+        assert near.mean() < 0.026 * extent(v)
+
+
+def test_a_hands_palm_is_not_cut():
+    """Inside a hand (the node its fingers hang from, and below) bones keep their length: a drawn hand has
+    no joint in its palm, and a generated hand's suggested skeleton has its 25–27 joints."""
+    for seed in (0, 2):
+        ch = make_character("hand", seed)
+        sk = suggest_skeleton(ch.mesh.vertices, ch.mesh.faces).skeleton
+        parents = np.asarray(sk.parents)
+        bones = np.linalg.norm(sk.positions[1:] - sk.positions[parents[1:]], axis=1)
+        assert sk.n_joints == 25
+        assert bones.max() > MAX_BONE * np.linalg.norm(np.ptp(ch.mesh.vertices, axis=0))
+
+
 def _base_error(ch, sk) -> float:
     """Mean distance (share of the size) from the true joints where limbs leave a branch joint (knuckles,
     shoulders, hips) to the nearest joint of ``sk``."""

@@ -5,21 +5,23 @@ Steps 0–3 (the surface, the AGD, the Reeb graph, pruning, hubs and root) are :
 
 4. **Joints**: every chain of the limb tree between branch nodes and leaves is smoothed (:data:`SMOOTH`) and
    simplified (Douglas–Peucker at :data:`BEND` of the diagonal keeps its bends) and cut into bones of at most
-   :data:`MAX_BONE`; a chain ending in a leaf (a limb, a finger, a tail) longer than :data:`LIMB` gets at
-   least :data:`LIMB_BONES` bones; joints closer than :data:`MIN_BONE` along a chain are merged. A limb that
-   leaves the body at a branch node gets a joint at its base (:func:`_limb_joints`) — where it has left the
-   body (``bases="ring"``), or moved into the body by the limb's radius if it is one of a pair
-   (``bases="inside"``, :func:`_base_inward`: a shoulder, a hip, a knuckle), or the latter only for limbs in
-   groups of four or more (``bases="auto"``, the default: fingers and toes; there the knuckle goes
-   :data:`KNUCKLE` of the finger's length in, and the finger gets exactly three bones, cut at
+   :data:`MAX_BONE` — between bands that lie further apart than that (a torso, a limb's first bone from its branch
+   node) by joints on the bone, except inside a hand (:func:`_add_bone`); a chain ending in a leaf (a limb, a
+   finger, a tail) longer than :data:`LIMB` gets at least :data:`LIMB_BONES` bones; joints closer than
+   :data:`MIN_BONE` along a chain are merged. A limb that leaves the body at a branch node gets a joint at its base
+   (:func:`_limb_joints`) — where it has left the body (``bases="ring"``), or moved into the body by the limb's
+   radius if it is one of a pair (``bases="inside"``, :func:`_base_inward`: a shoulder, a hip, a knuckle), or the
+   latter only for limbs in groups of four or more (``bases="auto"``, the default: fingers and toes; there the
+   knuckle goes :data:`KNUCKLE` of the finger's length in, and the finger gets exactly three bones, cut at
    :data:`PHALANGES`, :func:`_finger_joints`) — and alike limbs from one node alike joints
-   (:func:`_alike_limbs_alike`). **Other poses** of the same body (a match's target, a
-   track's frames) show where a limb that is straight here articulates: where their alike limbs bend, at the
-   same AGD below the tip, this limb is cut too (:func:`_bends_seen`), and then only by length where bones
-   are still too long.
+   (:func:`_alike_limbs_alike`). **Other poses** of the same body (a match's target, a track's frames) show where a
+   limb that is straight here articulates: where their alike limbs bend, at the same AGD below the tip, this limb is
+   cut too (:func:`_bends_seen`), and then only by length where bones are still too long.
 5. **Inside**: a limb's tip that the generalised winding number puts outside a closed mesh is moved back
    along its bone to just inside; any other joint outside to the middle of the mesh's inside along the
    inward normal at its nearest surface point.
+
+Over 500 lines: one concept, the joints placed on a limb tree, whose steps share the tree's chains.
 
 Written by hand: the curve-skeleton libraries (mesh contraction in skeletor, CGAL's mean-curvature
 skeleton) are GPL or C++, and give dense curves, not a joint tree; learned riggers need a GPU. Limits:
@@ -341,6 +343,22 @@ def _bends_seen(tree: LimbTree, other: LimbTree, sharpest: bool = False) -> dict
     return out
 
 
+def _add_bone(joints: list, parents: list, parent: int, at: np.ndarray, longest: float) -> int:
+    """Append a joint at ``at`` below joint ``parent`` (lists changed in place) and return its index; a bone
+    longer than ``longest`` is cut into equal bones by joints on it. Chain points are a limb tree's bands,
+    and where bands are far apart — a torso, whose level sets of the AGD are few, or a limb's first bone from
+    the branch node to where it has left the body — :func:`_chain_joints` has no point to cut at: the spine
+    between the pelvis and the chest, a clavicle, the bone from the pelvis to a hip come out whole.
+    """
+    start = np.asarray(joints[parent])
+    n = int(np.ceil(float(np.linalg.norm(at - start)) / longest - 1e-9)) if np.isfinite(longest) else 1
+    for i in range(1, max(n, 1) + 1):
+        joints.append(at if i == n or n <= 1 else start + (at - start) * (i / n))
+        parents.append(parent)
+        parent = len(joints) - 1
+    return parent
+
+
 def _move_inside(
     joints: np.ndarray, parents: np.ndarray, vertices: np.ndarray, faces: np.ndarray, diag: float
 ) -> tuple[np.ndarray, int]:
@@ -464,6 +482,8 @@ def _joint_tree(tree: LimbTree, others: list[LimbTree], name: str | None, bases:
             picks.append(_chain_joints(points, to_leaf, diag, bends.get(c, ())))
     picks = _alike_limbs_alike(tree, picks, kept=fingers)
     joints, parents, index = [tree.centroids[tree.root]], [-1], {tree.root: 0}
+    hubs = {tree.chains[c][0] for c in _grouped_limbs(tree)}  # a hand: its palm and fingers are not cut
+    in_hand = {0} if tree.root in hubs else set()
     for c, (chain, picked) in enumerate(zip(tree.chains, picks, strict=True)):
         parent = index[chain[0]]
         base = len(picked) > 1 and c in moved_in and len(tree.adj[chain[0]]) > 2
@@ -471,17 +491,17 @@ def _joint_tree(tree: LimbTree, others: list[LimbTree], name: str | None, bases:
             node = chain[k]
             if node not in index:
                 at = tree.centroids[node]
+                hand, first = parent in in_hand or node in hubs, len(joints)
                 if i == 0 and base:
                     inward = _base_inward(tree, chain, k, finger=c in fingers)
                     if c in fingers or not any(b <= k for b in bends.get(c, ())):
                         at = inward
                     elif np.linalg.norm(inward - at) > 1e-3 * diag:  # seen bending here: one inside too
-                        joints.append(inward)
-                        parents.append(parent)
-                        parent = len(joints) - 1
-                joints.append(at)
-                parents.append(parent)
-                index[node] = len(joints) - 1
+                        parent = _add_bone(joints, parents, parent, inward, np.inf if hand else MAX_BONE * diag)
+                parent = _add_bone(joints, parents, parent, at, np.inf if hand else MAX_BONE * diag)
+                index[node] = parent
+                if hand:
+                    in_hand.update(range(first, len(joints)))
             parent = index[node]
     positions, moved = _move_inside(np.asarray(joints), np.asarray(parents), *tree.shape, diag)
     names = ["root"] + [f"j{k}" for k in range(1, len(joints))]
