@@ -351,9 +351,9 @@ def _add_bone(joints: list, parents: list, parent: int, at: np.ndarray, longest:
     between the pelvis and the chest, a clavicle, the bone from the pelvis to a hip come out whole.
     """
     start = np.asarray(joints[parent])
-    n = int(np.ceil(float(np.linalg.norm(at - start)) / longest - 1e-9)) if np.isfinite(longest) else 1
-    for i in range(1, max(n, 1) + 1):
-        joints.append(at if i == n or n <= 1 else start + (at - start) * (i / n))
+    n = max(1, int(np.ceil(float(np.linalg.norm(at - start)) / longest - 1e-9)))  # longest = inf: 1
+    for i in range(1, n + 1):
+        joints.append(at if i == n else start + (at - start) * (i / n))
         parents.append(parent)
         parent = len(joints) - 1
     return parent
