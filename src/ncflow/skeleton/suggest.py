@@ -492,13 +492,14 @@ def _joint_tree(tree: LimbTree, others: list[LimbTree], name: str | None, bases:
             if node not in index:
                 at = tree.centroids[node]
                 hand, first = parent in in_hand or node in hubs, len(joints)
+                longest = np.inf if hand else MAX_BONE * diag
                 if i == 0 and base:
                     inward = _base_inward(tree, chain, k, finger=c in fingers)
                     if c in fingers or not any(b <= k for b in bends.get(c, ())):
                         at = inward
                     elif np.linalg.norm(inward - at) > 1e-3 * diag:  # seen bending here: one inside too
-                        parent = _add_bone(joints, parents, parent, inward, np.inf if hand else MAX_BONE * diag)
-                parent = _add_bone(joints, parents, parent, at, np.inf if hand else MAX_BONE * diag)
+                        parent = _add_bone(joints, parents, parent, inward, longest)
+                parent = _add_bone(joints, parents, parent, at, longest)
                 index[node] = parent
                 if hand:
                     in_hand.update(range(first, len(joints)))
