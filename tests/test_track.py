@@ -468,3 +468,53 @@ def test_a_sequence_without_a_skeleton_suggests_one_the_settings_way(tmp_path, m
     source = Mesh(np.asarray(sphere.vertices, float), np.asarray(sphere.faces, np.int64))
     _, _, suggested, _ = sequence._inputs(source, None, config, lambda text: None, paths)
     assert suggested and seen == {"bases": expected, "others": 3}
+
+
+def test_a_warm_start_carries_each_joint_on_at_its_speed():
+    """The predicted start of a warm frame turns every joint but the root once more by its turn between the
+    last two frames (checked against rotation matrices R_k R_{k-1}ᵀ R_k), keeps the root, a joint that turned
+    more than MAX_STEP_DEG, the translation, the networks and the multipliers, and is the state itself
+    without an earlier frame."""
+    import equinox as eqx
+    import jax
+    import jax.numpy as jnp
+
+    from ncflow.geometry.skeleton import Skeleton
+    from ncflow.matcher.train import TrainState, init_params
+    from ncflow.optim.mdmm import init_multipliers
+    from ncflow.skeleton.kinematics import rest_pose
+    from ncflow.track.warm import MAX_STEP_DEG, predicted_state
+
+    skel = Skeleton.from_arrays([[0, 0, 0], [0, 1, 0], [0, 2, 0], [1, 1, 0]], [-1, 0, 1, 1])
+    params = init_params(jax.random.key(0), _config(), skel)
+    rng = np.random.default_rng(3)
+    before_rot = Rotation.from_rotvec(rng.normal(size=(4, 3)) * 0.4)
+    step = Rotation.from_rotvec(rng.normal(size=(4, 3)) * np.array([[0.2], [0.2], [0.2], [0.0]]))
+    big = Rotation.from_rotvec([0.0, 0.0, np.radians(MAX_STEP_DEG + 5.0)])
+    step = Rotation.concatenate([step[:3], big])
+    now_rot = step * before_rot
+
+    def state(rot, translation):
+        pose = rest_pose(skel, jnp.float32)._replace(
+            rotations=jnp.asarray(rot.as_quat(scalar_first=True), jnp.float32),
+            translation=jnp.asarray(translation, jnp.float32),
+        )
+        p = eqx.tree_at(lambda q: q.flow.pose, params, pose)
+        return TrainState(p, pose, init_multipliers(jnp.full((2, skel.n_bones), 0.5, jnp.float32)))
+
+    now, before = state(now_rot, [0.1, 0.2, 0.3]), state(before_rot, [0.0, 0.0, 0.0])
+    ahead = predicted_state(now, before)
+    for pose in (ahead.params.flow.pose, ahead.pose):
+        got = Rotation.from_quat(np.asarray(pose.rotations, np.float64), scalar_first=True).as_matrix()
+        r_now, r_before = now_rot.as_matrix(), before_rot.as_matrix()
+        want = [r_now[j] @ r_before[j].T @ r_now[j] for j in (1, 2)]
+        np.testing.assert_allclose(got[1:3], want, atol=1e-5)
+        np.testing.assert_allclose(got[[0, 3]], r_now[[0, 3]], atol=1e-5)  # the root; the joint that turned 65°
+        np.testing.assert_array_equal(np.asarray(pose.translation), np.asarray(now.pose.translation))
+
+    def kept(s):
+        return s.params.flow.residual, s.params.gso, s.multipliers
+
+    same = [a is b for a, b in zip(jax.tree.leaves(kept(ahead)), jax.tree.leaves(kept(now)))]
+    assert same and all(same)
+    assert predicted_state(now, None) is now

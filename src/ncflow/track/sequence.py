@@ -1,8 +1,10 @@
 """``ncflow track``: one source with its skeleton registered to every frame of a sequence.
 
 :func:`track_sequence` matches the first frame as ``ncflow match`` does (placement, pose search, the
-whole schedule). Every later frame starts from the previous good frame — its trained networks, pose and
-multipliers, and its placement followed onto the new frame (:mod:`ncflow.track.warm`) — and trains
+whole schedule). Every later frame starts from the previous good frame — its trained networks, pose
+(every joint but the root turned on at its speed when that frame was warm-started from the one before:
+:func:`~ncflow.track.warm.predicted_state`) and multipliers, and its placement followed onto the new frame
+(:mod:`ncflow.track.warm`) — and trains
 ``warm_steps`` steps of the last phase; its map is still the map from the **source** to that frame, so
 nothing accumulates. When the warm frame's final data term, or its fit (the mean distance from the
 frame's vertices to the registered source, once above :data:`ncflow.track.warm.LOST_FIT` of the source's size), is more
@@ -62,6 +64,7 @@ from ncflow.track.warm import (
     follow_placement,
     load_state,
     lost,
+    predicted_state,
     reference,
     save_state,
 )
@@ -113,12 +116,15 @@ class TrackReport:
 
 @dataclasses.dataclass
 class _Last:
-    """The last good frame: what the next one starts from."""
+    """The last good frame: what the next one starts from (``before``: the trained state of the good frame
+    before it when the two are one warm run, for :func:`~ncflow.track.warm.predicted_state`).
+    """
 
     start: WarmStart | None
     placed_target: np.ndarray | None
     reference: np.ndarray | None
     stem: str | None
+    before: object = None
 
 
 def _check_options(warm_steps: int, lost_ratio: float, fps: float) -> None:
@@ -269,7 +275,7 @@ def _match_frame(src, frame: Mesh, skel, run: _Run, last: _Last, lost_ratio, ref
     placement = follow_placement(
         last.start.placement, last.placed_target, last.reference, run.normalization.apply(frame.vertices)
     )
-    start = WarmStart(last.start.state, placement, run.warm_steps, WARM_LR)
+    start = WarmStart(predicted_state(last.start.state, last.before), placement, run.warm_steps, WARM_LR)
     warm = run.matcher(src, frame, skel, quiet, stream, start).run()
     test = lost(warm, ref, lost_ratio, float(np.linalg.norm(np.ptp(src.vertices, axis=0))))
     torn = held and not bones_held(warm)
@@ -297,22 +303,24 @@ def _match_frame(src, frame: Mesh, skel, run: _Run, last: _Last, lost_ratio, ref
     return better, dict(info, fell_back=True, fell_back_reason=reason, kept="search" if better is full else "warm")
 
 
-def _hand_on(state, placement: Placement, norm, frame, registered, stem: str) -> _Last:
+def _hand_on(state, placement: Placement, norm, frame, registered, stem: str, last: _Last, kept: str) -> _Last:
     """What the next frame starts from: the frame's trained ``state`` and ``placement``, the frame's vertices
     and its registered source (user coordinates, as ``registered/STEM.ply`` holds it: float32) placed in
-    training coordinates — the same for a frame just finished and one read back.
+    training coordinates, and ``last``'s state when the frame was ``kept`` warm from it — the same for a frame
+    just finished and one read back.
     """
     registered = np.asarray(registered, np.float32).astype(np.float64)
     placed = placement.apply(norm.apply(frame)), placement.apply(norm.apply(registered))
-    return _Last(WarmStart(state, placement), *placed, stem)
+    before = last.start.state if kept == "warm" and last.start is not None else None
+    return _Last(WarmStart(state, placement), *placed, stem, before)
 
 
-def _resumed(out: Path, path: Path, sha: str, previous, src: Mesh, skel: Skeleton, run: _Run):
+def _resumed(out: Path, path: Path, sha: str, last: _Last, src: Mesh, skel: Skeleton, run: _Run):
     """(record, hand-on) of a good frame an earlier run finished, or None when it must be computed."""
     stem = path.stem
     try:
         rec = read_json_object(out / "records" / f"{stem}.json")
-        if rec.get("sha256") != sha or rec.get("previous") != previous or rec.get("status") != "ok":
+        if rec.get("sha256") != sha or rec.get("previous") != last.stem or rec.get("status") != "ok":
             return None
         mode = str(rec["weight_mode"])
         if run.mode not in (None, mode):
@@ -328,7 +336,7 @@ def _resumed(out: Path, path: Path, sha: str, previous, src: Mesh, skel: Skeleto
         return None
     if reg.shape != src.vertices.shape:
         return None
-    return rec, _hand_on(state, pl, run.normalization, frame, reg, stem)
+    return rec, _hand_on(state, pl, run.normalization, frame, reg, stem, last, str(rec.get("kept")))
 
 
 SUGGEST_FRAMES = 3
@@ -421,7 +429,7 @@ def track_sequence(
     n_resumed = 0
     for k, path in enumerate(paths):
         stem, sha = path.stem, file_sha256(path)
-        got = _resumed(out, path, sha, last.stem, src, skel, run) if resumable else None
+        got = _resumed(out, path, sha, last, src, skel, run) if resumable else None
         if got is not None:
             rec, last = got
             records.append(rec)
@@ -446,7 +454,14 @@ def track_sequence(
             _write_frame(out, stem, result, rec)
             records.append(rec)
             last = _hand_on(
-                result.state, result.placement, run.normalization, frame.vertices, result.deformed_source, stem
+                result.state,
+                result.placement,
+                run.normalization,
+                frame.vertices,
+                result.deformed_source,
+                stem,
+                last,
+                info["kept"],
             )
         if on_frame:
             on_frame(k, records[-1])

@@ -4,10 +4,11 @@ far above the recent frames', :func:`reference`; :func:`bones_held`) and which o
 is kept (:func:`better_match`).
 
 Each frame is matched from the **source** (the map of frame k is source → frame k, so errors do not
-accumulate); only the start of the optimisation is carried: the trained networks, pose and multipliers
-of the previous frame, handed to :class:`ncflow.matcher.Matcher` as a
-:class:`ncflow.matcher.steps.WarmStart` with its placement, moved onto the new frame by a trimmed rigid
-ICP (:func:`follow_placement`), and a short training (the last phase, at peak rate :data:`WARM_LR`).
+accumulate); only the start of the optimisation is carried: the trained networks, pose (carried on at its
+speed from the frame before, :func:`predicted_state`) and multipliers of the previous frame, handed to
+:class:`ncflow.matcher.Matcher` as a :class:`ncflow.matcher.steps.WarmStart` with its placement, moved onto
+the new frame by a trimmed rigid ICP (:func:`follow_placement`), and a short training (the last phase, at
+peak rate :data:`WARM_LR`).
 """
 
 from __future__ import annotations
@@ -44,6 +45,7 @@ __all__ = [
     "follow_placement",
     "load_state",
     "lost",
+    "predicted_state",
     "reference",
     "save_state",
 ]
@@ -58,6 +60,9 @@ LOST_FIT = 0.02
 """A fit (mean distance from the frame to the registered source) below this × the source's bounding-box
 diagonal never calls a warm start lost: the data term of a frame far from its match saturates (the
 kernel's cross term vanishes), so a jump shows in the fit first."""
+MAX_STEP_DEG = 60.0
+"""A joint whose local rotation changed by more than this between the last two frames is not carried on by
+:func:`predicted_state` (a turn that large between frames is a flip of the fit more likely than motion)."""
 REFERENCE_FRAMES = 5
 """Good frames whose data terms and fits make the reference of the lost-warm-start test (:func:`reference`)."""
 
@@ -167,3 +172,46 @@ def better_match(warm, full):
     if bones_held(warm) != bones_held(full):
         return warm if bones_held(warm) else full
     return full if final_data(full) < final_data(warm) else warm
+
+
+def _rotations(quats: np.ndarray) -> Rotation:
+    """Quaternions (w, x, y, z) as rotations, the zero vector as the identity (as the field reads them)."""
+    q = np.array(quats, np.float64)
+    q[np.linalg.norm(q, axis=1) < 1e-12] = (1.0, 0.0, 0.0, 0.0)
+    return Rotation.from_quat(q, scalar_first=True)
+
+
+def _carried_on(rotations: np.ndarray, before: np.ndarray, roots: np.ndarray) -> np.ndarray:
+    """(J, 4) wxyz local rotations ``rotations`` turned once more by their change since ``before``
+    (r ↦ r r_before⁻¹ r, the shortest arc), but the ``roots`` and joints that turned more than
+    :data:`MAX_STEP_DEG`.
+    """
+    now = _rotations(rotations)
+    step = now * _rotations(before).inv()
+    ahead = (step * now).as_quat(scalar_first=True)
+    keep = (np.degrees(step.magnitude()) <= MAX_STEP_DEG) & ~roots
+    return np.where(keep[:, None], ahead, rotations)
+
+
+def predicted_state(state: TrainState, before: TrainState | None) -> TrainState:
+    """The start of the next warm frame: ``state`` (the last good frame's) with every joint but the root
+    turned on at its speed since ``before`` (the good frame before it; None: ``state`` unchanged) — a
+    constant-velocity prediction of the pose, so that a limb swinging fast between frames (a walk's legs)
+    starts near where it will be instead of where it was. The root's turn and travel are the placement's
+    (:func:`follow_placement`); the networks and multipliers are carried as they are.
+    """
+    if before is None:
+        return state
+    field = state.params.flow
+    if not hasattr(field, "pose"):
+        return state
+
+    roots = np.asarray(field.skeleton.parents) < 0
+
+    def on(pose, old):
+        r = np.asarray(pose.rotations, np.float64)
+        ahead = _carried_on(r, np.asarray(old.rotations, np.float64), roots)
+        return pose._replace(rotations=jnp.asarray(ahead, pose.rotations.dtype))
+
+    params = eqx.tree_at(lambda p: p.flow.pose, state.params, on(field.pose, before.params.flow.pose))
+    return TrainState(params, on(state.pose, before.pose), state.multipliers)
