@@ -52,6 +52,7 @@ from ncflow.matcher.inputs import intake, load_source
 from ncflow.matcher.placement import Placement
 from ncflow.matcher.prepare import suggested_skeleton
 from ncflow.matcher.steps import Matcher, WarmStart
+from ncflow.matcher.train import TrainState
 from ncflow.skeleton import Skeleton, save_skeleton
 from ncflow.track.frames import frame_files
 from ncflow.track.outputs import write_sequence_outputs
@@ -124,7 +125,7 @@ class _Last:
     placed_target: np.ndarray | None
     reference: np.ndarray | None
     stem: str | None
-    before: object = None
+    before: TrainState | None = None
 
 
 def _check_options(warm_steps: int, lost_ratio: float, fps: float) -> None:
