@@ -198,14 +198,12 @@ def predicted_state(state: TrainState, before: TrainState | None) -> TrainState:
     turned on at its speed since ``before`` (the good frame before it; None: ``state`` unchanged) — a
     constant-velocity prediction of the pose, so that a limb swinging fast between frames (a walk's legs)
     starts near where it will be instead of where it was. The root's turn and travel are the placement's
-    (:func:`follow_placement`); the networks and multipliers are carried as they are.
+    (:func:`follow_placement`); the networks and multipliers are carried as they are. A field without a
+    skeleton pose (``flow.skinning`` off) is carried unchanged.
     """
-    if before is None:
-        return state
     field = state.params.flow
-    if not hasattr(field, "pose"):
+    if before is None or not hasattr(field, "pose"):
         return state
-
     roots = np.asarray(field.skeleton.parents) < 0
 
     def on(pose, old):
