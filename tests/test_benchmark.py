@@ -181,7 +181,7 @@ def test_ablation_methods_are_the_table_1_rows(capsys):
         "Var+DQ": ({"varifold"}, "sclerp", "soft"),
         "Var+DQ+CO": ({"varifold"}, "sclerp", "mdmm"),
         "NC+DQ+CO": ({"normal-cycles"}, "sclerp", "mdmm"),
-        "full": ({"varifold", "normal-cycles"}, "sclerp", "mdmm"),
+        "full": ({"varifold", "auto"}, "sclerp", "mdmm"),
     }
     assert methods[-1].config == base and len({m.id for m in methods}) == 5
     # every other setting is the base configuration's

@@ -112,7 +112,7 @@ def test_padded_training_objective_equals_the_unpadded_one():
     skel = Skeleton.from_arrays(np.array([[0, 0, -1.6], [0, 0, 0.0], [0, 0, 1.6]]), np.array([-1, 0, 1]))
     cfg = _config(**{"sampling.surface_edges": 0, "weights.surface": 1.0})
     prob = prepare(Mesh(vs, fs, "s"), Mesh(bend(vs, 50.0), fs, "t"), skel, cfg)
-    stages = build_stages(cfg)
+    stages = build_stages(cfg, prob.working_edge)
     targets = target_measures(prob, place(prob, cfg), stages, cfg)
     st = stages[-1]
     target, yy, _ = targets[(st.metric, st.sigma, st.phase_config.sigma_normal)]

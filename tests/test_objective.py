@@ -5,6 +5,7 @@ learning rate scaled through optax.multi_transform → the sign ascent of optim.
 """
 
 import dataclasses
+import itertools
 
 import equinox as eqx
 import jax
@@ -49,8 +50,11 @@ def problem():
     vt, ft = capsule(radius=0.4, length=3.0, n_around=9, n_along=9, diagonal="left")
     skel = Skeleton.from_arrays(np.array([[0, 0, -1.6], [0, 0, 0.0], [0, 0, 1.6]]), np.array([-1, 0, 1]))
     cfg = _config()
+    # the fast preset's "auto" phase at σ 0.5 and 0.1 on this coarse capsule (median edge 0.4 normalised):
+    # Normal Cycles, then the four-point Varifold — with the first phase, all three data terms
+    cfg = dataclasses.replace(cfg, phases=(cfg.phases[0], dataclasses.replace(cfg.phases[1], sigmas=(0.5, 0.1))))
     prob = prepare(Mesh(vs, fs, "s"), Mesh(bend(vt, 50.0), ft, "t"), skel, cfg)
-    stages = build_stages(cfg)
+    stages = build_stages(cfg, prob.working_edge)
     return cfg, prob, stages, target_measures(prob, place(prob, cfg), stages, cfg)
 
 
@@ -153,14 +157,14 @@ def test_data_term_reads_only_what_the_target_shows(problem):
 
 
 def test_one_step_for_every_metric_picks_the_stage_data_term(problem):
-    """The training compiles one step for the Varifold and the Normal Cycle stages: ``which``
+    """The training compiles one step for the Varifold, Normal Cycle and four-point Varifold stages: ``which``
     selects the data term, and each equals the single-metric objective's (everything else is the same)."""
     cfg, prob, stages, targets = problem
     arrays = Arrays.from_problem(prob)
     firsts = {}
     for st in stages:
         firsts.setdefault(st.metric, st)
-    assert set(firsts) == {"varifold", "normal-cycles"}
+    assert set(firsts) == {"varifold", "normal-cycles", "varifold-q4"}
     names = tuple(firsts)
     both = Settings.from_config(cfg, names, int(arrays.edges.shape[0]), 0)
     params = init_params(jax.random.key(0), cfg, arrays.skeleton)
@@ -194,7 +198,8 @@ def test_one_step_for_every_metric_picks_the_stage_data_term(problem):
         shared = data(both, i, tuple(tg[n][0] for n in names), st)
         assert shared == pytest.approx(single, rel=1e-5)  # float32 training: only the fusion differs
         values.append(single)
-    assert abs(values[0] - values[1]) > 1e-3 * abs(values[0])  # two different terms were picked
+    for a, b in itertools.combinations(values, 2):  # three different terms were picked
+        assert abs(a - b) > 1e-3 * abs(a)
 
 
 def test_step_runs_the_multiplier_rule_of_optim_mdmm(problem):
@@ -370,3 +375,27 @@ def test_the_leash_setting():
 
     with pytest.raises(InputError, match="leash"):
         _config(**{"flow.leash": -1})
+
+
+def test_auto_stages_take_the_four_point_varifold_where_sigma_is_below_the_source_edge():
+    """The fast preset's second phase (``metric = "auto"``): Normal Cycles at every σ on a fine source (a
+    body's 0.12 median edge: the schedule of DESIGN.md, stage for stage), the four-point Varifold at the σ
+    that MANO's 0.155 edge exceeds by more than 1.4×, at both on a coarser one; an explicit metric is kept."""
+    from ncflow.matcher.stages import COARSE_EDGE, last_phase_stages
+
+    cfg = preset("fast")
+
+    def metrics(edge):
+        return [(st.metric, st.sigma) for st in build_stages(cfg, edge)]
+
+    assert metrics(0.12) == [("varifold", 0.25), ("normal-cycles", 0.25), ("normal-cycles", 0.1)]
+    assert metrics(0.155) == [("varifold", 0.25), ("normal-cycles", 0.25), ("varifold-q4", 0.1)]
+    assert metrics(0.4) == [("varifold", 0.25), ("varifold-q4", 0.25), ("varifold-q4", 0.1)]
+    assert metrics(COARSE_EDGE * 0.1)[-1] == ("normal-cycles", 0.1)  # at the bound: still Normal Cycles
+    assert [st.metric for st in last_phase_stages(cfg, 50, 3e-3, 0.155)] == ["normal-cycles", "varifold-q4"]
+    fixed = dataclasses.replace(cfg, phases=(dataclasses.replace(cfg.phases[1], metric="normal-cycles"),))
+    assert [st.metric for st in build_stages(fixed, 0.4)] == ["normal-cycles", "normal-cycles"]
+    quad = dataclasses.replace(cfg, phases=(dataclasses.replace(cfg.phases[0], quadrature=4),))
+    assert [st.metric for st in build_stages(quad)] == ["varifold-q4"]
+    with pytest.raises(ValueError, match="median edge"):
+        build_stages(cfg)

@@ -37,15 +37,16 @@ def test_restrict_by_ones_is_the_measure():
         np.testing.assert_array_equal(np.asarray(r.weights), np.asarray(x.weights))
 
 
-def test_restricted_varifold_is_the_varifold_of_the_faces_kept():
+@pytest.mark.parametrize("quadrature", [1, 4])
+def test_restricted_varifold_is_the_varifold_of_the_faces_kept(quadrature):
     """With ω the indicator of a region, ⟨X_ω, Y⟩ is the inner product of the sub-mesh of the faces whose
-    three corners are in the region (brute force: the sub-mesh's own varifold)."""
+    three corners are in the region (brute force: the sub-mesh's own varifold), at one or four points a face."""
     v, f = _sphere(3)
     keep = v[:, 2] > 0.1
     topo = mesh_topology(f, v.shape[0])
     y = varifold(v + [0.05, 0.0, 0.0], f)
-    part = restrict(varifold(v, f), topo, keep.astype(float))
-    sub = varifold(*_half(v, f, keep))
+    part = restrict(varifold(v, f, quadrature), topo, keep.astype(float))
+    sub = varifold(*_half(v, f, keep), quadrature)
     for sigma in (0.2, 0.5):
         assert float(varifold_inner(part, y, sigma, 0.5)) == pytest.approx(
             float(varifold_inner(sub, y, sigma, 0.5)), rel=1e-10

@@ -40,6 +40,8 @@ BILLION_LAUGHS = (
         ("lr.toml", '[[phases]]\nmetric = "varifold"\nsteps = 5\nlr = -1e-3\n', "learning rates"),
         ("lr_inf.toml", '[[phases]]\nmetric = "varifold"\nsteps = 5\nlr = inf\n', "phases[0].lr must be finite"),
         ("lr_end.toml", '[[phases]]\nmetric = "varifold"\nsteps = 5\nlr_end = nan\n', "lr_end must be finite"),
+        ("quad.toml", '[[phases]]\nmetric = "varifold"\nsteps = 5\nquadrature = 3\n', "quadrature must be 1 or 4"),
+        ("quad_nc.toml", "[[phases]]\nsteps = 5\nquadrature = 4\n", "quadrature applies to the Varifold only"),
         ("edges.toml", "[sampling]\nsurface_edges = -7\n", "surface_edges must be non-negative (0 means all edges)"),
         ("eps.toml", "[constraints]\neps = -inf\n", "constraints.eps must be finite"),
         ("weights.toml", "[weights]\ntissue = -1\n", "weights.tissue must be non-negative"),

@@ -108,6 +108,10 @@ BETWEEN_SETTINGS = (
         lambda c: not (c.flow.skinning and c.flow.div_free),
         "flow.div_free needs flow.skinning=false (blended bone velocities are not divergence-free)",
     ),
+    (
+        lambda c: all(p.quadrature == 1 or p.metric == "varifold" for p in c.phases),
+        'a phase\'s quadrature applies to the Varifold only (metric = "varifold")',
+    ),
     (lambda c: len(c.phases) >= 1, "at least one phase is needed"),
     (lambda c: c.total_steps >= 1, "the phases have no steps"),
 )

@@ -2,7 +2,9 @@
 
 * ``fast`` — tuned for a 2-core CPU: a narrow flow net plus the skeleton-driven velocities
   (``flow.skinning``), few bone/tissue samples per step, a short Varifold phase then Normal Cycles
-  coarse → fine, target compressed per length scale, MDMM aiming at 0.7 ε.
+  coarse → fine (``metric = "auto"``: a stage whose σ is below the source's edge length takes the
+  Varifold at four points a face instead, :func:`ncflow.matcher.stages.stage_metric`), target
+  compressed per length scale, MDMM aiming at 0.7 ε.
 * ``paper`` — the paper/release settings (reference-notes §10): width-256 depth-6 flow net,
   50 samples per bone, 2000 tissue samples, 2000 Varifold steps (σ 0.5 → 0.25) then 2000 Normal
   Cycle steps (σ 0.25 → 0.1) and 1000 fine-tuning steps, AdaBelief-cautious with lr 3e-3.
@@ -32,8 +34,7 @@ def _fast() -> Config:
         phases=(
             PhaseConfig(name="varifold", metric="varifold", steps=150, sigmas=(0.25,), lr=3e-3, warmup=10),
             PhaseConfig(
-                name="normal-cycles",
-                metric="normal-cycles",
+                metric="auto",
                 steps=250,
                 sigmas=(0.25, 0.1),
                 lr=3e-3,

@@ -18,7 +18,7 @@ from typing import Any
 from ncflow.config.quoting import quote
 from ncflow.geometry.repair import MAX_WELD_TOLERANCE
 
-METRICS = ("varifold", "normal-cycles")
+METRICS = ("varifold", "normal-cycles", "auto")
 #: largest seed + 1 (NumPy and JAX take 32-bit seeds)
 SEED_LIMIT = 2**32
 
@@ -160,6 +160,10 @@ class PhaseConfig:
     (constant if ``lr_end`` is None). ``trajectory`` adds the interior-time bone constraints;
     ``constraint_weight`` multiplies the constraint term in this phase (the release's fine-tuning
     phase uses 20× its main endpoint weight; no preset uses more than 1, docs/tuning.md).
+    ``metric``: ``"varifold"``, ``"normal-cycles"`` or ``"auto"`` (per stage: Normal Cycles, or the Varifold
+    at four points a face where σ is below the source's edge length; :func:`ncflow.matcher.stages.stage_metric`).
+    ``quadrature`` (Varifold only): points a face is integrated at, 1 (its centroid, the paper's) or 4
+    (the centroids of its midpoint subdivision: :mod:`ncflow.measures.varifold`).
     """
 
     metric: str = setting("normal-cycles", choices=METRICS, message="{name} must be one of " + ", ".join(METRICS))
@@ -171,6 +175,7 @@ class PhaseConfig:
     warmup: int = setting(10, lo=0, hi=10**8, message=PHASE_COUNT)
     trajectory: bool = setting(True)
     constraint_weight: float = setting(1.0, lo=0, message=NON_NEGATIVE)
+    quadrature: int = setting(1, check=lambda q: q in (1, 4), message="{name} must be 1 or 4 (got {value})")
     name: str = setting("")
 
 

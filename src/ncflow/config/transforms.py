@@ -38,9 +38,12 @@ def with_metric(config: Config, metric: str) -> Config:
     """Ablation switch ``--metric``: 'varifold', 'normal-cycles' or 'varifold+normal-cycles' (the default)."""
     if metric == "varifold+normal-cycles":
         return config
-    if metric not in METRICS:
+    if metric not in METRICS or metric == "auto":
         raise InputError(f"--metric must be varifold, normal-cycles or varifold+normal-cycles (got {quote(metric)})")
-    phases = tuple(dataclasses.replace(p, metric=metric) for p in config.phases)
+    phases = tuple(
+        dataclasses.replace(p, metric=metric, quadrature=p.quadrature if metric == "varifold" else 1)
+        for p in config.phases
+    )
     return dataclasses.replace(config, phases=phases)
 
 

@@ -113,6 +113,16 @@ class Setup:
     target_cloud: dict | None = None
     alternatives: tuple[Setup, ...] = ()
 
+    @property
+    def working_edge(self) -> float:
+        """The median length of the working source's face edges (normalised units; each interior edge
+        counted from both faces): what a ``metric = "auto"`` phase compares its σ with
+        (:func:`ncflow.matcher.stages.stage_metric`).
+        """
+        f = np.asarray(self.working.faces, dtype=np.int64)
+        v = np.asarray(self.working.vertices, dtype=np.float64)
+        return float(np.median(np.linalg.norm(v[f] - v[np.roll(f, 1, axis=1)], axis=2))) if f.size else 0.0
+
 
 def bone_radii(config, skeleton: Skeleton, flesh: Float[np.ndarray, " B"]) -> Float[np.ndarray, " B"]:
     """(B,) the bone samples' radius factors ρ_b: the skeleton's own or ``sampling.bone_radius``; with the

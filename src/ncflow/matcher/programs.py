@@ -151,7 +151,7 @@ def build_programs(setup: Setup, config, keys) -> Programs:
     """The programs of ``setup`` (nothing compiled yet), and with ``compile_ahead`` the thread that compiles
     them (``keys``: the run's initialisation, training and output keys).
     """
-    stages = tuple(build_stages(config))
+    stages = tuple(build_stages(config, setup.working_edge))
     arrays = Arrays.from_problem(setup)
     n_centroids = int(setup.centroids.shape[0])
     training = training_programs(arrays, list(stages), config, n_centroids, setup.skinning_weights["mode"])
@@ -180,7 +180,7 @@ def check_programs(programs: Programs, setup: Setup, config) -> None:
     (same working source, skeleton and bone-weight mode): what reusing them needs.
     """
     arrays = Arrays.from_problem(setup)
-    stages = tuple(build_stages(config))
+    stages = tuple(build_stages(config, setup.working_edge))
     metrics = tuple(dict.fromkeys(st.metric for st in stages))
     old, new = programs.arrays.skeleton, arrays.skeleton
     same = (

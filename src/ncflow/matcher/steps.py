@@ -155,9 +155,13 @@ class Matcher:
         self.keys = run_keys(self.config.seed)  # initialisation, training, outputs
         self.start = start
         short = isinstance(start, WarmStart) and start.steps is not None
-        self.stages = last_phase_stages(self.config, start.steps, start.lr) if short else build_stages(self.config)
-        self.progress = Progress(sum(st.steps for st in self.stages), quiet, stream)
+        self.progress = Progress(int(start.steps) if short else self.config.total_steps, quiet, stream)
         self.setup = prepare(source, target, skeleton, self.config, message=self.progress.message)
+        edge = self.setup.working_edge
+        if short:
+            self.stages = last_phase_stages(self.config, start.steps, start.lr, edge)
+        else:
+            self.stages = build_stages(self.config, edge)
         placed = None
         if start is not None:
             self.setup = with_joints(self.setup, np.asarray(start.state.pose.rotations).shape[0])

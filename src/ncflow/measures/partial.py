@@ -31,11 +31,13 @@ from ncflow.measures.varifold import Varifold
 
 
 def restrict_varifold(x: Varifold, faces: Int[np.ndarray, "F 3"], vertex_weights: Float[ArrayLike, " V"]) -> Varifold:
-    """The Varifold ``x`` of a mesh with faces ``faces`` restricted by ``vertex_weights``: face f's Dirac
-    weighed by min over its vertices of ω.
+    """The Varifold ``x`` of a mesh with faces ``faces`` restricted by ``vertex_weights``: face f's Diracs
+    (one, or a quadrature's, face-major: :func:`ncflow.measures.varifold.varifold`) weighed by min over
+    its vertices of ω.
     """
     w = jnp.asarray(vertex_weights, x.weights.dtype)
     omega = jnp.min(w[jnp.asarray(faces)], axis=1)
+    omega = jnp.repeat(omega, x.weights.shape[0] // omega.shape[0])
     return Varifold(centers=x.centers, normals=x.normals, weights=x.weights * omega)
 
 

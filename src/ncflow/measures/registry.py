@@ -8,6 +8,10 @@ edge tables the Normal Cycle needs); ``inner(x, y, sigma, sigma_normal)`` is the
 product (the Normal Cycle kernel has no normal scale and ignores ``sigma_normal``);
 ``compress(y, m, sigma, sigma_normal, seed)`` is the Nyström compression of Algorithm 2;
 ``distance(x, y, sigma, sigma_normal)`` = ⟨X, X⟩ + ⟨Y, Y⟩ − 2⟨X, Y⟩.
+
+``"varifold-q4"`` is the Varifold integrated at four points a face
+(:data:`ncflow.measures.varifold.QUADRATURE`): a phase's ``metric = "varifold"`` with ``quadrature = 4``
+(:func:`metric_key`). A measure of another shape, so it is a metric of its own to the compiled step.
 """
 
 from __future__ import annotations
@@ -32,14 +36,19 @@ class Metric:
     distance: Callable[..., Any]
 
 
-METRICS: dict[str, Metric] = {
-    "varifold": Metric(
-        name="varifold",
-        represent=lambda vertices, topology: varifold(vertices, topology.faces),
+def _varifold_metric(quadrature: int) -> Metric:
+    return Metric(
+        name="varifold" if quadrature == 1 else f"varifold-q{quadrature}",
+        represent=lambda vertices, topology: varifold(vertices, topology.faces, quadrature),
         inner=lambda x, y, sigma, sigma_normal: varifold_inner(x, y, sigma, sigma_normal),
         compress=lambda y, m, sigma, sigma_normal, seed: compress_varifold(y, m, sigma, sigma_normal, seed=seed),
         distance=lambda x, y, sigma, sigma_normal: varifold_distance(x, y, sigma, sigma_normal),
-    ),
+    )
+
+
+METRICS: dict[str, Metric] = {
+    "varifold": _varifold_metric(1),
+    "varifold-q4": _varifold_metric(4),
     "normal-cycles": Metric(
         name="normal-cycles",
         represent=lambda vertices, topology: normal_cycle(vertices, topology),
@@ -50,8 +59,19 @@ METRICS: dict[str, Metric] = {
 }
 
 
+def metric_key(metric: str, quadrature: int = 1) -> str:
+    """The name in :data:`METRICS` of a phase's data term: ``metric`` integrated at ``quadrature`` points a
+    face (the Varifold only; the Normal Cycle of a mesh has its points on the edges).
+    """
+    if quadrature == 1:
+        return metric
+    if metric != "varifold":
+        raise ValueError(f"quadrature {quadrature} applies to the Varifold only, not to {metric!r}")
+    return f"{metric}-q{quadrature}"
+
+
 def get_metric(name: str) -> Metric:
-    """The :class:`Metric` called ``name`` (``"varifold"`` or ``"normal-cycles"``)."""
+    """The :class:`Metric` called ``name`` (``"varifold"``, ``"varifold-q4"`` or ``"normal-cycles"``)."""
     try:
         return METRICS[name]
     except KeyError:

@@ -11,6 +11,16 @@ No π or other constant factor (as in the authors' release).
 Implementation: for unit or non-unit n, exp(γ_n n·n') = e^{γ_n‖n‖²/2} e^{γ_n‖n'‖²/2} e^{−γ_n‖n−n'‖²/2},
 so the sum is a Gaussian kernel sum (:func:`ncflow.measures.kernels.kernel_sum`) over the 6-D
 features [c/(√2σ), n/(2σ_n)] with weights a·e^{‖n‖²/(4σ_n²)}.
+
+Quadrature. One Dirac a face (``quadrature=1``, the paper's) integrates each face at its centroid. When σ
+is below a mesh's edge length that rule is too coarse: two triangulations of one surface are then
+different measures, and the term's minimum lies away from the truth (MANO, 0.18 mean edge against
+σ = 0.1 in normalised units: the source at the truth scores 0.102 of ⟨Y, Y⟩ against 0.092 after
+training onto its own retriangulation). ``quadrature=4`` splits every Dirac into the centroids of the
+four triangles of the face's midpoint subdivision (barycentric (2/3, 1/6, 1/6), its permutations and
+(1/3, 1/3, 1/3)), each with a quarter of the area and the face's normal — the same surface, integrated
+by the composite centroid rule on the face's midpoint subdivision; there the truth scores 0.016 against
+0.018 after the same training (docs/tuning.md, "The last stage on coarse sources").
 """
 
 from __future__ import annotations
@@ -43,13 +53,32 @@ class Varifold(eqx.Module):
         return int(self.centers.shape[0])
 
 
-def varifold(vertices: Float[ArrayLike, "V 3"], faces: Int[np.ndarray, "F 3"]) -> Varifold:
-    """The varifold of a triangle mesh: face centres, unit normals and areas (differentiable in vertices)."""
+QUADRATURE: dict[int, np.ndarray] = {
+    1: np.array([[1 / 3, 1 / 3, 1 / 3]]),
+    4: np.array([[2 / 3, 1 / 6, 1 / 6], [1 / 6, 2 / 3, 1 / 6], [1 / 6, 1 / 6, 2 / 3], [1 / 3, 1 / 3, 1 / 3]]),
+}
+"""Barycentric points of the quadrature rules a face is integrated at, by number of points (module docstring)."""
+
+
+def varifold(vertices: Float[ArrayLike, "V 3"], faces: Int[np.ndarray, "F 3"], quadrature: int = 1) -> Varifold:
+    """The varifold of a triangle mesh (differentiable in vertices): per face, ``quadrature`` Diracs at the
+    points of :data:`QUADRATURE` carrying the unit normal and an equal share of the area, face-major
+    ((F · quadrature,) rows: face f's points are rows f·q … f·q + q − 1).
+    """
+    if quadrature not in QUADRATURE:
+        raise ValueError(f"quadrature must be one of {sorted(QUADRATURE)}, not {quadrature!r}")
     v = jnp.asarray(vertices)
     tri = v[jnp.asarray(faces)]
     cross = jnp.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     normals, norm = safe_normalize(cross)
-    return Varifold(centers=tri.mean(axis=1), normals=normals, weights=0.5 * norm)
+    if quadrature == 1:
+        return Varifold(centers=tri.mean(axis=1), normals=normals, weights=0.5 * norm)
+    centers = jnp.einsum("qk,fkd->fqd", jnp.asarray(QUADRATURE[quadrature], v.dtype), tri).reshape(-1, 3)
+    return Varifold(
+        centers=centers,
+        normals=jnp.repeat(normals, quadrature, axis=0),
+        weights=jnp.repeat((0.5 / quadrature) * norm, quadrature),
+    )
 
 
 def varifold_features(
