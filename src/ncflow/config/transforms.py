@@ -10,7 +10,7 @@ import os
 
 from ncflow.config.checks import validate_config
 from ncflow.config.quoting import quote
-from ncflow.config.settings import METRICS, RESULT_NEUTRAL, Config
+from ncflow.config.settings import RESULT_NEUTRAL, Config
 from ncflow.errors import InputError
 from ncflow.io.files import file_sha256
 
@@ -38,7 +38,7 @@ def with_metric(config: Config, metric: str) -> Config:
     """Ablation switch ``--metric``: 'varifold', 'normal-cycles' or 'varifold+normal-cycles' (the default)."""
     if metric == "varifold+normal-cycles":
         return config
-    if metric not in METRICS or metric == "auto":
+    if metric not in ("varifold", "normal-cycles"):
         raise InputError(f"--metric must be varifold, normal-cycles or varifold+normal-cycles (got {quote(metric)})")
     phases = tuple(
         dataclasses.replace(p, metric=metric, quadrature=p.quadrature if metric == "varifold" else 1)

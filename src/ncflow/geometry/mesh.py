@@ -93,6 +93,13 @@ def face_areas(vertices: Float[np.ndarray, "V 3"], faces: Int[np.ndarray, "F 3"]
     return 0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
 
 
+def face_edge_lengths(vertices: Float[np.ndarray, "V 3"], faces: Int[np.ndarray, "F 3"]) -> Float[np.ndarray, "F 3"]:
+    """(F, 3) length of every triangle's edges (corner k to corner k − 1; an interior edge once per face)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    return np.linalg.norm(v[f] - v[np.roll(f, 1, axis=1)], axis=2)
+
+
 def vertex_normals(vertices: Float[np.ndarray, "V 3"], faces: Int[np.ndarray, "F 3"]) -> Float[np.ndarray, "V 3"]:
     """(V, 3) area-weighted unit vertex normals; zero for a vertex in no (non-degenerate) triangle."""
     v = np.asarray(vertices, dtype=np.float64)

@@ -22,7 +22,7 @@ from ncflow.flow.skinning import skin_contact
 from ncflow.geometry.cloud import PointCloud
 from ncflow.geometry.decimate import Decimation, decimate
 from ncflow.geometry.laplacian import lumped_mass
-from ncflow.geometry.mesh import Mesh, outward_vertex_normals
+from ncflow.geometry.mesh import Mesh, face_edge_lengths, outward_vertex_normals
 from ncflow.geometry.normalize import Normalization, fit_normalization
 from ncflow.geometry.overlap import self_overlap
 from ncflow.geometry.repair import Repair
@@ -119,9 +119,8 @@ class Setup:
         counted from both faces): what a ``metric = "auto"`` phase compares its σ with
         (:func:`ncflow.matcher.stages.stage_metric`).
         """
-        f = np.asarray(self.working.faces, dtype=np.int64)
-        v = np.asarray(self.working.vertices, dtype=np.float64)
-        return float(np.median(np.linalg.norm(v[f] - v[np.roll(f, 1, axis=1)], axis=2))) if f.size else 0.0
+        lengths = face_edge_lengths(self.working.vertices, self.working.faces)
+        return float(np.median(lengths)) if lengths.size else 0.0
 
 
 def bone_radii(config, skeleton: Skeleton, flesh: Float[np.ndarray, " B"]) -> Float[np.ndarray, " B"]:

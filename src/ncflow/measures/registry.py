@@ -36,29 +36,6 @@ class Metric:
     distance: Callable[..., Any]
 
 
-def _varifold_metric(quadrature: int) -> Metric:
-    return Metric(
-        name="varifold" if quadrature == 1 else f"varifold-q{quadrature}",
-        represent=lambda vertices, topology: varifold(vertices, topology.faces, quadrature),
-        inner=lambda x, y, sigma, sigma_normal: varifold_inner(x, y, sigma, sigma_normal),
-        compress=lambda y, m, sigma, sigma_normal, seed: compress_varifold(y, m, sigma, sigma_normal, seed=seed),
-        distance=lambda x, y, sigma, sigma_normal: varifold_distance(x, y, sigma, sigma_normal),
-    )
-
-
-METRICS: dict[str, Metric] = {
-    "varifold": _varifold_metric(1),
-    "varifold-q4": _varifold_metric(4),
-    "normal-cycles": Metric(
-        name="normal-cycles",
-        represent=lambda vertices, topology: normal_cycle(vertices, topology),
-        inner=lambda x, y, sigma, sigma_normal: normal_cycle_inner(x, y, sigma),
-        compress=lambda y, m, sigma, sigma_normal, seed: compress_normal_cycle(y, m, sigma, seed=seed),
-        distance=lambda x, y, sigma, sigma_normal: normal_cycle_distance(x, y, sigma),
-    ),
-}
-
-
 def metric_key(metric: str, quadrature: int = 1) -> str:
     """The name in :data:`METRICS` of a phase's data term: ``metric`` integrated at ``quadrature`` points a
     face (the Varifold only; the Normal Cycle of a mesh has its points on the edges).
@@ -68,6 +45,32 @@ def metric_key(metric: str, quadrature: int = 1) -> str:
     if metric != "varifold":
         raise ValueError(f"quadrature {quadrature} applies to the Varifold only, not to {metric!r}")
     return f"{metric}-q{quadrature}"
+
+
+def _varifold_metric(quadrature: int) -> Metric:
+    return Metric(
+        name=metric_key("varifold", quadrature),
+        represent=lambda vertices, topology: varifold(vertices, topology.faces, quadrature),
+        inner=lambda x, y, sigma, sigma_normal: varifold_inner(x, y, sigma, sigma_normal),
+        compress=lambda y, m, sigma, sigma_normal, seed: compress_varifold(y, m, sigma, sigma_normal, seed=seed),
+        distance=lambda x, y, sigma, sigma_normal: varifold_distance(x, y, sigma, sigma_normal),
+    )
+
+
+METRICS: dict[str, Metric] = {
+    m.name: m
+    for m in (
+        _varifold_metric(1),
+        _varifold_metric(4),
+        Metric(
+            name="normal-cycles",
+            represent=lambda vertices, topology: normal_cycle(vertices, topology),
+            inner=lambda x, y, sigma, sigma_normal: normal_cycle_inner(x, y, sigma),
+            compress=lambda y, m, sigma, sigma_normal, seed: compress_normal_cycle(y, m, sigma, seed=seed),
+            distance=lambda x, y, sigma, sigma_normal: normal_cycle_distance(x, y, sigma),
+        ),
+    )
+}
 
 
 def get_metric(name: str) -> Metric:

@@ -34,7 +34,7 @@ from jaxtyping import Float, Int
 from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 
 from ncflow.errors import InputError
-from ncflow.geometry.mesh import face_areas
+from ncflow.geometry.mesh import face_areas, face_edge_lengths
 from ncflow.geometry.topology import close_boundary, mesh_topology, vertex_components
 
 N_SOURCES = 24
@@ -350,7 +350,7 @@ def _even_edges(v: np.ndarray, fc: np.ndarray, longest: float) -> tuple[np.ndarr
     """
     import trimesh.remesh
 
-    edges = np.linalg.norm(v[fc] - v[np.roll(fc, 1, axis=1)], axis=2)
+    edges = face_edge_lengths(v, fc)
     area = float(face_areas(v, fc).sum())
     longest = max(longest, float(np.sqrt(area / (0.433 * MAX_FACES))))
     if edges.max() <= longest:
