@@ -1,7 +1,8 @@
-"""Geometric measures of surfaces: Varifolds, Normal Cycles, kernel sums and Nyström compression."""
+"""Geometric measures of surfaces: Varifolds, Normal Cycles, kernel sums, Nyström compression and merged Diracs."""
 
 from ncflow.measures.compression import CompressionReport, compress_normal_cycle, compress_varifold, leverage_scores
 from ncflow.measures.kernels import kernel_matvec, kernel_self_sum, kernel_sum
+from ncflow.measures.merge import merge_diracs
 from ncflow.measures.normal_cycles import NormalCycle, normal_cycle, normal_cycle_distance, normal_cycle_inner
 from ncflow.measures.partial import restrict, restrict_normal_cycle, restrict_varifold
 from ncflow.measures.registry import METRICS, Metric, get_metric
@@ -20,6 +21,7 @@ __all__ = [
     "kernel_self_sum",
     "kernel_sum",
     "leverage_scores",
+    "merge_diracs",
     "normal_cycle",
     "normal_cycle_distance",
     "normal_cycle_inner",
