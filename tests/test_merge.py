@@ -35,6 +35,12 @@ def test_few_diracs_are_kept_as_given(sphere):
         np.testing.assert_array_equal(a, b)
 
 
+def test_no_area_gives_the_first_n_rows():
+    c, n = np.zeros((10, 3)), np.tile([0.0, 0.0, 1.0], (10, 1))
+    out = merge_diracs(c, n, np.zeros(10), 4)
+    assert [a.shape[0] for a in out] == [4, 4, 4] and not out[2].any()
+
+
 def test_mass_and_first_moment_are_kept(sphere):
     c, n, w = face_diracs(sphere)
     mc, mn, mw = merge_diracs(c, n, w, 400, seed=3)

@@ -48,8 +48,8 @@ def merge_diracs(
     c = np.asarray(centers, np.float64)
     nrm = np.asarray(normals, np.float64)
     w = np.asarray(weights, np.float64)
-    if c.shape[0] <= n:
-        return c, nrm, w
+    if c.shape[0] <= n or not w.sum() > 0:  # nothing to merge (no area: the first n, all of zero weight)
+        return c[:n], nrm[:n], w[:n]
     scale = np.sqrt(w.sum() / n)
     z = np.concatenate([c, scale * nrm], axis=1)
     rng = np.random.default_rng([seed, 1913])
