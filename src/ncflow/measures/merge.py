@@ -22,8 +22,8 @@ from jaxtyping import Float
 from scipy.spatial import cKDTree
 
 LLOYD_ITERATIONS = 8
-"""Lloyd iterations of :func:`merge_diracs` (the relative Varifold error on a MANO target at σ = 0.15
-settles within 10 % of its last value after about five)."""
+"""Lloyd iterations of :func:`merge_diracs` (on a MANO target, 1200 clusters, the relative Varifold error at
+σ = 0.15 after 0 / 1 / 3 / 5 / 8 / 12 iterations: 0.0031 / 0.0022 / 0.0019 / 0.0019 / 0.0019 / 0.0019)."""
 
 
 def _cluster_sums(labels: np.ndarray, weights: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
