@@ -137,4 +137,4 @@ def test_padded_training_objective_equals_the_unpadded_one():
         jax.tree_util.tree_leaves(eqx.filter(g0, eqx.is_inexact_array)),
         jax.tree_util.tree_leaves(eqx.filter(g1, eqx.is_inexact_array)),
     ):
-        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=2e-4, atol=1e-7)
+        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=5e-4, atol=1e-7)
