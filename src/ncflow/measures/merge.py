@@ -62,9 +62,7 @@ def merge_diracs(
         mass = np.bincount(labels, w, minlength=n)
         full = mass > 0
         means[full] = _cluster_sums(labels, w, z, n)[full] / mass[full, None]
-    out_c = np.repeat(c[start[:1]], n, axis=0)
-    out_c[full] = _cluster_sums(labels, w, c, n)[full] / mass[full, None]
     summed = _cluster_sums(labels, w, nrm, n)
     length = np.linalg.norm(summed, axis=1, keepdims=True)
     out_n = np.where(length > 1e-300, summed / np.maximum(length, 1e-300), np.array([0.0, 0.0, 1.0]))
-    return out_c, out_n, mass
+    return means[:, :3], out_n, mass  # the last update's means are the clusters' centres
