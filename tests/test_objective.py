@@ -377,6 +377,21 @@ def test_the_leash_setting():
         _config(**{"flow.leash": -1})
 
 
+def test_the_tissue_anchor_setting_follows_the_weight_mode():
+    from ncflow.errors import InputError
+    from ncflow.matcher.objective import tissue_anchored
+
+    auto = _config(**{"flow.tissue_anchor": "auto"})
+    assert [tissue_anchored(auto, m) for m in ("surface", "start", "current")] == [True, False, False]
+    assert tissue_anchored(_config(**{"flow.tissue_anchor": "on"}), "current")
+    assert not tissue_anchored(_config(**{"flow.tissue_anchor": "off"}), "surface")
+    assert not tissue_anchored(_config(**{"flow.tissue_anchor": "on", "flow.skinning": "false"}), "surface")
+    assert Settings.from_config(auto, "varifold", 10, 0, "surface").tissue_anchor
+    assert not Settings.from_config(auto, "varifold", 10, 0).tissue_anchor
+    with pytest.raises(InputError, match="tissue_anchor"):
+        _config(**{"flow.tissue_anchor": "sometimes"})
+
+
 def test_auto_stages_take_the_four_point_varifold_where_sigma_is_below_the_source_edge():
     """The fast preset's second phase (``metric = "auto"``): Normal Cycles at every σ on a fine source (a
     body's 0.12 median edge: the schedule of DESIGN.md, stage for stage), the four-point Varifold at the σ

@@ -212,6 +212,69 @@ def test_skinned_flow_matches_an_independent_ode_solution(mode):
     assert errors[1] < errors[0] / 1.7, errors
 
 
+def test_anchored_points_take_their_anchors_weights_and_a_stencil_moves_by_one_affine_map():
+    """integrate(..., anchors=A) with start weights: each point moves by dx/dt = Σ_b w_b(A) ξ_b(t)(x), the
+    weights of its anchor (scipy's RK45 on that system as the oracle); a tissue stencil anchored at its
+    centre then moves by one affine map of space (exactly, with the residual off), where unanchored it
+    does not.
+    """
+    from scipy.integrate import solve_ivp
+
+    from ncflow.flow import integrate
+
+    skel, pose = _skeleton(), _pose(_skeleton())
+    field = SkinnedField(_residual(alpha=0.0), skel, pose, width=0.3, dtype=jnp.float64, weight_mode="start")
+    x0 = np.array([[0.1, 0.05, 1.0], [0.0, 0.3, 1.9], [0.5, -0.1, 1.1], [0.05, 0.0, 0.4]])
+    anchors = x0[[1, 2, 3, 0]]  # every point anchored at another one
+    bones = jnp.asarray(POSITIONS[skel.bones[:, 0]]), jnp.asarray(POSITIONS[skel.bones[:, 1]])
+    w = np.asarray(skinning_weights(jnp.asarray(anchors), *bones, 0.3))
+    motion = jax.jit(lambda t: bone_velocities(skel, field.swing_pose(), t))
+
+    def rhs(t, y):
+        x = y.reshape(-1, 3)
+        r, c, dr, dc = (np.asarray(a) for a in motion(t))
+        xi = np.einsum("bij,bkj,nbk->nbi", dr, r, x[:, None, :] - c[None]) + dc[None]
+        return np.einsum("nb,nbi->ni", w, xi).reshape(-1)
+
+    ref = solve_ivp(rhs, (0.0, 1.0), x0.reshape(-1), rtol=1e-9, atol=1e-11).y[:, -1].reshape(-1, 3)
+    end = np.asarray(integrate(field, jnp.asarray(x0), 40, anchors=jnp.asarray(anchors))[0][-1])
+    assert np.abs(end - ref).max() < 3e-3
+    unanchored = np.asarray(integrate(field, jnp.asarray(x0), 40)[0][-1])
+    assert np.abs(unanchored - ref).max() > 10 * np.abs(end - ref).max()  # the anchors changed the weights
+
+    # a stencil p, p + δe_m and a fifth point p + δ Σ c_m e_m, all anchored at p (between two bones)
+    p, delta, c = np.array([0.05, 0.1, 1.05]), 0.05, np.array([0.3, -0.2, 0.5])
+    pts = np.vstack([p, p + delta * np.eye(3), p + delta * c])
+    for anchored in (True, False):
+        anchors = jnp.tile(p, (5, 1)) if anchored else None
+        xs = np.asarray(integrate(field, jnp.asarray(pts), 10, anchors=anchors)[0][-1])
+        miss = np.abs(xs[4] - (xs[0] + c @ (xs[1:4] - xs[0]))).max()
+        assert miss < 1e-10 if anchored else miss > 1e-5, (anchored, miss)
+
+
+def test_an_anchored_tissue_stencil_between_touching_limbs_is_not_torn():
+    """A fingertip bone resting 0.2 above its palm bone (a U-shaped chain) lifts by 90°: a tissue stencil
+    midway between them, its points' weights taken where they start, is torn by the weights' jump
+    between the limbs; anchored at its centre its velocity is one blend of two rigid velocities with
+    fixed weights, itself rigid, so it turns by half the angle unbent (energy 0 but for the integrator's
+    per-step blends of finite turns).
+    """
+    from ncflow.flow import integrate
+    from ncflow.losses import split_stencil, tissue_frame_energy, tissue_stencil
+
+    skel = Skeleton.from_arrays([[0, 0, 0], [1.0, 0, 0], [1.0, 0.2, 0], [0.2, 0.2, 0]], [-1, 0, 1, 2])
+    one = jnp.asarray([1.0, 0, 0, 0], jnp.float64)
+    pose = Pose(jnp.stack([one, one, quat_from_rotvec(jnp.asarray([0, 0, -np.pi / 2])), one]), jnp.zeros(3))
+    field = SkinnedField(_residual(alpha=0.0), skel, pose, width=0.05, dtype=jnp.float64, weight_mode="start")
+    centre, delta = jnp.asarray([[0.6, 0.1, 0.0]]), 0.01
+    stencil = tissue_stencil(centre, delta)
+    energy = {}
+    for anchored in (False, True):
+        xs = integrate(field, stencil, 10, anchors=jnp.tile(centre, (4, 1)) if anchored else None)[0]
+        energy[anchored] = float(tissue_frame_energy(split_stencil(xs)[1][-1], delta)[0])
+    assert energy[True] < 0.01 and energy[False] > 10.0, energy
+
+
 def test_pose_gradient_is_finite_at_rest_and_moves_the_points():
     skel = _skeleton()
     pts = jnp.asarray(np.random.default_rng(4).normal(scale=0.3, size=(30, 3)) + [0, 0, 1.5])

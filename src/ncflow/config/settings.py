@@ -114,7 +114,12 @@ class FlowConfig:
     ``leash`` (with ``skinning``; 0: off) weighs a term that holds the Flow-Net itself, before the cores
     fade it, near zero at the bone samples (:func:`ncflow.matcher.objective.leash_term`), so that the
     skin next to a bone moves with the bone's pose rather than with a Flow-Net turning against it (off by
-    default: it costs MANO hands 0.01–0.03 of geodesic AUC; docs/tuning.md, "The Flow-Net on a leash").
+    default: it costs MANO hands 0.01–0.03 of geodesic AUC; docs/tuning.md, "The Flow-Net on a leash");
+    ``tissue_anchor`` gives each tissue sample's stencil the bone weights of its centre where the weights
+    are those of the start, so that the skeleton moves it rigidly and the tissue term reads the Flow-Net's
+    distortion alone: ``"on"``, ``"off"``, or ``"auto"`` (on where the weights see the skin, ``"surface"``:
+    a stencil between touching limbs is otherwise torn by the articulated motion itself;
+    :func:`ncflow.matcher.objective.tissue_anchored`, docs/tuning.md, "Tissue stencils anchored").
     """
 
     width: int = setting(64, lo=1, hi=1 << 16, message=AT_LEAST_1)
@@ -131,6 +136,7 @@ class FlowConfig:
     hold_contact_pose: bool = setting(True)
     rigid_core: float = setting(1.0, lo=0, message=NON_NEGATIVE)
     leash: float = setting(0.0, lo=0, message=NON_NEGATIVE)
+    tissue_anchor: str = setting("auto", choices=("auto", "on", "off"), message="{name} must be 'auto', 'on' or 'off'")
     n_times: int = setting(10, lo=2, hi=100_000, message="{name} must be at least 2")
     gso_width: int = setting(32, lo=1, hi=1 << 16)
     gso_depth: int = setting(2, lo=0, hi=1024)

@@ -49,6 +49,7 @@ def integrate(
     n_times: int = 10,
     checkpoint: bool = False,
     normals: Float[ArrayLike, "N 3"] | None = None,
+    anchors: Float[ArrayLike, "N 3"] | None = None,
 ) -> tuple[Float[Array, "T N 3"], Float[Array, "T N 3"]]:
     """Grid states and stored slopes of the Heun-type recursion above.
 
@@ -61,6 +62,9 @@ def integrate(
         normals: (N, 3) the surface normals at the start points (zero rows where a point has none),
             read only by a field whose weights depend on them (a :class:`~ncflow.flow.SkinnedField`
             with ``weight_mode="surface"``).
+        anchors: (N, 3) where a field whose weights are those of the start takes each point's weights
+            (default x0): a tissue stencil's points anchored at its centre share one blend of the bones'
+            rigid velocities, itself rigid.
 
     Returns:
         xs (T, N, 3) with xs[0] = x0 and xs[-1] the state at t = 1, and vs (T, N, 3) the slopes v_k.
@@ -75,7 +79,7 @@ def integrate(
     x0 = jnp.asarray(x0)
     ts = time_grid(n_times, x0.dtype)
     if hasattr(field, "on_grid"):
-        field = field.on_grid(n_times, x0.dtype, x0, normals)
+        field = field.on_grid(n_times, x0.dtype, x0 if anchors is None else jnp.asarray(anchors, x0.dtype), normals)
     h = jnp.asarray(1.0 / (n_times - 1), x0.dtype)
     g = eqx.filter_checkpoint(lambda x, t: field(x, t)) if checkpoint else field
 

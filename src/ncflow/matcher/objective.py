@@ -8,7 +8,8 @@ sample, :func:`ncflow.tissue.sample_tissue` + :func:`ncflow.losses.tissue_stenci
 
 with the data term relative to the target's self-energy (so one set of weights works across
 meshes, scales and σ), L_surf the ARAP term against the GSO-Net on ``sampling.surface_edges``
-random edges (:func:`ncflow.losses.surface_distortion`), L_soft the tissue stencil term, L_leash the
+random edges (:func:`ncflow.losses.surface_distortion`), L_soft the tissue stencil term (a stencil's
+points anchored at its sample where :func:`tissue_anchored`), L_leash the
 Flow-Net's size at the bone samples (:func:`leash_term`, weight ``flow.leash``), and C the
 bone-constraint term. With MDMM, C = w · (c_EP · M(g^EP, λ^EP) + c_TR · τ · M(g^TR, λ^TR)) with
 M = :func:`ncflow.optim.mdmm.mdmm_term` (mean over bones) at the level margin · ε; with soft
@@ -83,12 +84,22 @@ class Settings:
     surface_weight: float
     tissue_weight: float
     leash_weight: float = 0.0
+    tissue_anchor: bool = False  # a tissue stencil's points take its centre's bone weights
 
     @classmethod
-    def from_config(cls, config, metrics: str | tuple[str, ...], n_edges_total: int, n_centroids: int) -> Settings:
+    def from_config(
+        cls,
+        config,
+        metrics: str | tuple[str, ...],
+        n_edges_total: int,
+        n_centroids: int,
+        weight_mode: str = "current",
+    ) -> Settings:
         """Settings of ``config`` for the data terms ``metrics`` (one name or several: one step
         compiled for all stages); ``sampling.surface_edges`` ≤ 0, or at least the source's
-        ``n_edges_total`` real edges, means all edges (``n_edges`` 0).
+        ``n_edges_total`` real edges, means all edges (``n_edges`` 0). ``weight_mode``: the
+        skeleton-driven field's (:func:`ncflow.matcher.prepare.skinning_weight_mode`), which
+        ``flow.tissue_anchor = "auto"`` reads (:func:`tissue_anchored`).
         """
         c, s = config.constraints, config.sampling
         return cls(
@@ -109,7 +120,21 @@ class Settings:
             surface_weight=config.weights.surface,
             tissue_weight=config.weights.tissue,
             leash_weight=config.flow.leash if config.flow.skinning else 0.0,
+            tissue_anchor=tissue_anchored(config, weight_mode),
         )
+
+
+def tissue_anchored(config, weight_mode: str) -> bool:
+    """Whether a tissue stencil's points take the bone weights of its centre (``flow.tissue_anchor``:
+    "on", "off", or "auto": where the weights are those of the start seeing the skin, ``"surface"``, the
+    weight mode of sources whose limbs touch). The stencil's articulated velocity is then one blend of
+    rigid bone velocities with fixed weights, itself rigid, so the tissue term reads the Flow-Net's
+    distortion, not a stencil torn where its points' weights jump between limbs (a fist's fingertips on
+    its palm; docs/tuning.md).
+    Only a field whose weights are those of the start reads it (:func:`ncflow.flow.integrate`'s ``anchors``).
+    """
+    setting = config.flow.tissue_anchor
+    return bool(config.flow.skinning) and (setting == "on" or (setting == "auto" and weight_mode == "surface"))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -246,13 +271,15 @@ def objective(
     ).points  # (B, n, 3)
     nb = bones.shape[0] * bones.shape[1]
     parts = [src, bones.reshape(-1, 3)]
+    anchors = None
     if s.n_tissue:
-        parts.append(
-            tissue_stencil(sample_tissue(kt, arrays.centroids, s.n_tissue, arrays.centroid_valid), s.tissue_delta)
-        )
+        tissue = sample_tissue(kt, arrays.centroids, s.n_tissue, arrays.centroid_valid)
+        parts.append(tissue_stencil(tissue, s.tissue_delta))
+        if s.tissue_anchor:
+            anchors = jnp.concatenate([*parts[:2], jnp.tile(tissue, (4, 1))])
     points = jnp.concatenate(parts)
     normals = jnp.concatenate([arrays.normals, jnp.zeros((points.shape[0] - nv, 3), DTYPE)])  # samples: none
-    xs, _ = integrate(params.flow, points, s.n_times, normals=normals)
+    xs, _ = integrate(params.flow, points, s.n_times, normals=normals, anchors=anchors)
     surf = xs[:, :nv]
     flowed_bones = xs[:, nv : nv + nb].reshape(s.n_times, *bones.shape)
     data = _data_term(s.metrics, which, surf[-1], arrays, targets, sigma, sigma_normal, yy)

@@ -186,7 +186,9 @@ def check_programs(programs: Programs, setup: Setup, config) -> None:
     same = (
         programs.stages == stages
         and programs.training.settings
-        == Settings.from_config(config, metrics, arrays.n_edges, setup.centroids.shape[0])
+        == Settings.from_config(
+            config, metrics, arrays.n_edges, setup.centroids.shape[0], setup.skinning_weights["mode"]
+        )
         and programs.arrays.n_vertices == arrays.n_vertices
         and programs.arrays.n_edges == arrays.n_edges
         and np.array_equal(old.positions, new.positions)

@@ -174,7 +174,7 @@ def training_programs(
 
     optimizer = build_optimizer(cfg)
     metrics = tuple(dict.fromkeys(st.metric for st in stages))
-    settings = Settings.from_config(cfg, metrics, arrays.n_edges, n_centroids)
+    settings = Settings.from_config(cfg, metrics, arrays.n_edges, n_centroids, weight_mode)
     step = make_step(arrays, settings, optimizer, cfg.constraints)
     return TrainingPrograms(jit_run_once(initial_params), optimizer, settings, step, weight_mode)
 
