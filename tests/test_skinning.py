@@ -174,14 +174,29 @@ def test_start_weights_let_a_folding_bone_reach_its_parent():
     assert miss["current"] > 2.5e-2 and miss["current"] > 5 * miss["start"], miss  # taken over near the end
 
 
+def _articulated_reference(field, skel, x0, weights):
+    """Where scipy's adaptive RK45 takes x0 (N, 3) by dx/dt = Σ_b w_b ξ_b(t)(x) of ``field``'s bones at t = 1,
+    ``weights(x, t)`` → (N, B) (numpy): the oracle of the integrator's articulated part.
+    """
+    from scipy.integrate import solve_ivp
+
+    motion = jax.jit(lambda t: bone_velocities(skel, field.swing_pose(), t))  # compiled once: called thousands of times
+
+    def rhs(t, y):
+        x = y.reshape(-1, 3)
+        r, c, dr, dc = (np.asarray(a) for a in motion(t))
+        xi = np.einsum("bij,bkj,nbk->nbi", dr, r, x[:, None, :] - c[None]) + dc[None]  # (N, B, 3) bone velocities
+        return np.einsum("nb,nbi->ni", weights(x, t), xi).reshape(-1)
+
+    return solve_ivp(rhs, (0.0, 1.0), np.asarray(x0).reshape(-1), rtol=1e-9, atol=1e-11).y[:, -1].reshape(-1, 3)
+
+
 @pytest.mark.parametrize("mode", ["start", "current", "surface"])
 def test_skinned_flow_matches_an_independent_ode_solution(mode):
     """The flow of the articulated part against scipy's adaptive RK45 on dx/dt = Σ_b w_b ξ_b(t)(x),
     with w_b taken at the start x(0) (with the normals there: "surface"), or at the current x(t) (the
     field's own weight function).
     """
-    from scipy.integrate import solve_ivp
-
     skel, pose = _skeleton(), _pose(_skeleton())
     field = SkinnedField(_residual(alpha=0.0), skel, pose, width=0.3, dtype=jnp.float64, weight_mode=mode)
     x0 = np.array([[0.1, 0.05, 1.0], [0.0, 0.3, 1.9], [0.5, -0.1, 1.1], [0.05, 0.0, 0.4]])  # near joints
@@ -193,18 +208,14 @@ def test_skinned_flow_matches_an_independent_ode_solution(mode):
         plain, rest = rest, surface_skinning_weights(jnp.asarray(x0), jnp.asarray(n0), *bones, 0.3)
         assert np.abs(np.asarray(rest) - np.asarray(plain)).max() > 0.3  # the normals change the weights
 
-    # compiled once: the adaptive solver calls them thousands of times
-    motion = jax.jit(lambda t: bone_velocities(skel, field.swing_pose(), t))
-    weights = jax.jit(lambda x, t: field.weights(x, t))
-
-    def rhs(t, y):
-        x = y.reshape(-1, 3)
-        r, c, dr, dc = (np.asarray(a) for a in motion(t))
-        w = np.asarray(rest) if mode != "current" else np.asarray(weights(jnp.asarray(x), t))
-        xi = np.einsum("bij,bkj,nbk->nbi", dr, r, x[:, None, :] - c[None]) + dc[None]  # (N, B, 3) bone velocities
-        return np.einsum("nb,nbi->ni", w, xi).reshape(-1)
-
-    ref = solve_ivp(rhs, (0.0, 1.0), x0.reshape(-1), rtol=1e-9, atol=1e-11).y[:, -1].reshape(-1, 3)
+    current = jax.jit(lambda x, t: field.weights(x, t))  # compiled once: the solver calls it thousands of times
+    start = np.asarray(rest)
+    ref = _articulated_reference(
+        field,
+        skel,
+        x0,
+        (lambda x, t: np.asarray(current(jnp.asarray(x), t))) if mode == "current" else (lambda x, t: start),
+    )
     ends = [jax.jit(lambda x, n=n: flow_points(field, x, n, normals=n0)[-1])(jnp.asarray(x0)) for n in (20, 40)]
     errors = [float(np.abs(np.asarray(end) - ref).max()) for end in ends]
     # the bones' motions are stepped in closed form and blended per step: first order where weights blend
@@ -218,8 +229,6 @@ def test_anchored_points_take_their_anchors_weights_and_a_stencil_moves_by_one_a
     centre then moves by one affine map of space (exactly, with the residual off), where unanchored it
     does not.
     """
-    from scipy.integrate import solve_ivp
-
     from ncflow.flow import integrate
 
     skel, pose = _skeleton(), _pose(_skeleton())
@@ -228,15 +237,7 @@ def test_anchored_points_take_their_anchors_weights_and_a_stencil_moves_by_one_a
     anchors = x0[[1, 2, 3, 0]]  # every point anchored at another one
     bones = jnp.asarray(POSITIONS[skel.bones[:, 0]]), jnp.asarray(POSITIONS[skel.bones[:, 1]])
     w = np.asarray(skinning_weights(jnp.asarray(anchors), *bones, 0.3))
-    motion = jax.jit(lambda t: bone_velocities(skel, field.swing_pose(), t))
-
-    def rhs(t, y):
-        x = y.reshape(-1, 3)
-        r, c, dr, dc = (np.asarray(a) for a in motion(t))
-        xi = np.einsum("bij,bkj,nbk->nbi", dr, r, x[:, None, :] - c[None]) + dc[None]
-        return np.einsum("nb,nbi->ni", w, xi).reshape(-1)
-
-    ref = solve_ivp(rhs, (0.0, 1.0), x0.reshape(-1), rtol=1e-9, atol=1e-11).y[:, -1].reshape(-1, 3)
+    ref = _articulated_reference(field, skel, x0, lambda x, t: w)
     end = np.asarray(integrate(field, jnp.asarray(x0), 40, anchors=jnp.asarray(anchors))[0][-1])
     assert np.abs(end - ref).max() < 3e-3
     unanchored = np.asarray(integrate(field, jnp.asarray(x0), 40)[0][-1])
