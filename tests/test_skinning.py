@@ -555,3 +555,85 @@ def test_core_weights_are_the_bones_own_inside_its_core_and_a_partition_of_unity
     step = np.asarray(core_weights(skinning_weights(x + 1e-6, heads, tails, 0.3), x + 1e-6, heads, tails, core))
     assert np.abs(step - w).max() < 1e-3
     assert core_weights(plain, x, heads, tails, None) is plain
+
+
+def _sunk_fingertip():
+    """A box body 4 × 1 × 1 (x from 0 to 4) with a chain of bones along its axis that leaves it at the
+    far end, runs back above it (outside) and ends in a bone that dips through the top skin to 0.05 under
+    it at x = 1: a fingertip sunk into the palm, as in a captured fist."""
+    import trimesh
+
+    box = trimesh.creation.box(extents=(4.0, 1.0, 1.0))
+    box.apply_translation([2.0, 0.0, 0.0])
+    for _ in range(4):
+        box = box.subdivide()
+    joints = [[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0], [4.5, 0, 0], [1.4, 0, 1.5], [1.0, 0, 0.45]]
+    skel = Skeleton.from_arrays(np.asarray(joints, float), [-1, 0, 1, 2, 3, 4, 5])
+    return np.asarray(box.vertices), np.asarray(box.faces), skel
+
+
+def test_skin_islands_take_the_palms_skin_off_a_sunk_fingertip():
+    """The top skin over the sunk tip has the tip bone nearest and behind it, so the front test gives it
+    to the tip; along the surface that patch is cut off from the tip's own chain, whose other bones lie
+    outside (in front of every vertex). ``skin_islands`` leaves the tip bone out for exactly the vertices
+    a brute force (dense segment sampling, the front test) gives to it, and nothing else; a chain without
+    the sunk bone loses nothing. Turning the tip's joint then carries the patch off with the normals
+    alone and leaves it in place with the islands (``surface_skin``'s columns)."""
+    from ncflow.flow.skinning import skin_islands, surface_skin
+    from ncflow.geometry.mesh import outward_vertex_normals
+
+    v, f, skel = _sunk_fingertip()
+    n = outward_vertex_normals(v, f)
+    heads, tails = skel.positions[skel.bones[:, 0]], skel.positions[skel.bones[:, 1]]
+    t = np.linspace(0.0, 1.0, 2001)
+    seg = heads[:, None] + t[None, :, None] * (tails - heads)[:, None]  # (B, T, 3)
+    given = np.empty(len(v), int)
+    for i in range(len(v)):
+        d_all = np.linalg.norm(seg - v[i], axis=-1)
+        near = seg[np.arange(len(heads)), d_all.argmin(1)] - v[i]
+        d = np.where(near @ n[i] > 0.0, np.inf, np.linalg.norm(near, axis=1))
+        given[i] = d.argmin()
+    tip = int(np.nonzero((skel.bones == [5, 6]).all(1))[0][0])
+    assert 10 < (given == tip).sum() < 0.05 * len(v)  # a patch of skin around the sunk end, nothing else
+    assert np.all(np.abs(v[given == tip, 0] - 1.1) < 0.6) and np.all(v[given == tip, 2] > 0.2)
+    out = skin_islands(v, f, n, heads, tails, skel.bone_hops <= 1)
+    expected = np.zeros_like(out)
+    expected[given == tip, tip] = True
+    np.testing.assert_array_equal(out, expected)
+    chain = Skeleton.from_arrays(skel.positions[:5], skel.parents[:5])
+    h5, t5 = chain.positions[chain.bones[:, 0]], chain.positions[chain.bones[:, 1]]
+    assert not skin_islands(v, f, n, h5, t5, chain.bone_hops <= 1).any()
+
+    skin = surface_skin(v, f, skel.positions, skel.parents)
+    np.testing.assert_allclose(skin[:, :3], n)
+    np.testing.assert_array_equal(skin[:, 3:], expected.astype(float))
+    one = jnp.asarray([1.0, 0, 0, 0])
+    rotations = jnp.stack([one] * 5 + [_turn(90), one])  # the tip's joint turns
+    pose = Pose(rotations, jnp.zeros(3))
+    field = SkinnedField(_residual(alpha=0.0), skel, pose, width=0.05, dtype=jnp.float64, weight_mode="surface")
+    patch = jnp.asarray(v[given == tip])
+    moved = {}
+    for name, normals in (("islands", skin[given == tip]), ("normals", n[given == tip])):
+        end = np.asarray(flow_points(field, patch, 20, normals=normals)[-1])
+        moved[name] = np.linalg.norm(end - v[given == tip], axis=1)
+    assert moved["islands"].max() < 1e-6
+    assert moved["normals"].min() > 0.3
+
+
+def test_exported_skin_weights_leave_the_islands_bones_out():
+    """``skeleton_weights`` (the rig's and the track's per-joint weights) reads ``surface_skin``'s columns as
+    the field does: the patch over the sunk tip gets (almost) no weight from the tip's joint with them, and
+    most of it from the outward normals alone (more than 0.4 everywhere, 0.75 on average)."""
+    from ncflow.flow.skinning import surface_skin
+    from ncflow.geometry.mesh import outward_vertex_normals
+    from ncflow.retarget.weights import skeleton_weights
+
+    v, f, skel = _sunk_fingertip()
+    skin = surface_skin(v, f, skel.positions, skel.parents)
+    patch = skin[:, 3:].any(1)
+    assert patch.sum() > 10
+    with_islands = skeleton_weights(v, skel.positions, skel.parents, 0.05, skin)
+    normals_only = skeleton_weights(v, skel.positions, skel.parents, 0.05, outward_vertex_normals(v, f))
+    assert with_islands[patch, 5].max() < 1e-6  # bone 5 -> 6 moves with joint 5
+    assert normals_only[patch, 5].min() > 0.4 and normals_only[patch, 5].mean() > 0.75
+    np.testing.assert_allclose(with_islands[~patch], normals_only[~patch], atol=1e-6)

@@ -48,7 +48,7 @@ def integrate(
     x0: Float[Array, "N 3"],
     n_times: int = 10,
     checkpoint: bool = False,
-    normals: Float[ArrayLike, "N 3"] | None = None,
+    normals: Float[ArrayLike, "N C"] | None = None,
     anchors: Float[ArrayLike, "N 3"] | None = None,
 ) -> tuple[Float[Array, "T N 3"], Float[Array, "T N 3"]]:
     """Grid states and stored slopes of the Heun-type recursion above.
@@ -183,7 +183,7 @@ def flow_points(
     times: Float[Array, " Q"] | None = None,
     checkpoint: bool = False,
     chunk_size: int | None = None,
-    normals: Float[ArrayLike, "N 3"] | None = None,
+    normals: Float[ArrayLike, "N C"] | None = None,
 ) -> Float[Array, "T_or_Q N 3"]:
     """Move any point set by a (trained) field: the grid states (T, N, 3), or the Hermite frames
     (Q, N, 3) at ``times`` when given; ``normals`` (N, 3) as :func:`integrate`'s. Identical to

@@ -14,7 +14,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from jaxtyping import Float, Int
+from jaxtyping import Bool, Float, Int
 
 from ncflow.errors import InputError
 
@@ -174,14 +174,20 @@ def close_boundary(
     return np.concatenate([vertices, centroids]), np.concatenate([faces, cap])
 
 
-def vertex_components(faces: Int[np.ndarray, "F 3"], n_vertices: int) -> Int[np.ndarray, " V"]:
+def vertex_components(
+    faces: Int[np.ndarray, "F 3"], n_vertices: int, joined: Bool[np.ndarray, "F 3"] | None = None
+) -> Int[np.ndarray, " V"]:
     """(V,) the connected component of each vertex, vertices joined through the faces' edges (a vertex in
-    no face is a component of its own); labels 0, 1, … as SciPy numbers them.
+    no face is a component of its own); labels 0, 1, … as SciPy numbers them. ``joined`` (F, 3): which of
+    each face's edges (corner k to corner k + 1 mod 3) join their vertices (default: all).
     """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
     f = np.asarray(faces, np.int64).reshape(-1, 3)
     rows, cols = f.reshape(-1), f[:, [1, 2, 0]].reshape(-1)
+    if joined is not None:
+        keep = np.asarray(joined, bool).reshape(-1)
+        rows, cols = rows[keep], cols[keep]
     graph = coo_matrix((np.ones(rows.size), (rows, cols)), shape=(n_vertices, n_vertices))
     return connected_components(graph, directed=False)[1]

@@ -60,8 +60,8 @@ def pad_rows(tree: PyTree, size: int) -> PyTree:
     return jax.tree_util.tree_map(pad, tree)
 
 
-def pad_points(points: Float[ArrayLike, "N 3"]) -> Float[Array, "M 3"]:
-    """Points (N, 3) with copies of the first appended up to their size bucket (M =
+def pad_points(points: Float[ArrayLike, "N C"]) -> Float[Array, "M C"]:
+    """Rows (N, C): points or their normals, with copies of the first appended up to their size bucket (M =
     :func:`bucket` (N, :data:`MESH_PER_OCTAVE`); N = 0 stays empty): the rows a flow moves each on
     its own, so the copies change no real row and point sets of similar size share compiled programs.
     """

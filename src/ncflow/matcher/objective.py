@@ -34,6 +34,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from ncflow.flow import GSONet, integrate, time_grid
+from ncflow.flow.skinning import surface_skin
 from ncflow.geometry.mesh import outward_vertex_normals
 from ncflow.geometry.topology import Topology
 from ncflow.jit.buckets import bucket, pad_mesh
@@ -124,6 +125,18 @@ class Settings:
         )
 
 
+def start_normals(
+    vertices: Float[np.ndarray, "V 3"], faces: Int[np.ndarray, "F 3"], problem: Setup
+) -> Float[np.ndarray, "V C"]:
+    """(V, 3) outward vertex normals of a source mesh in the problem's normalised coordinates, or (V, 3 + B)
+    where its bone weights see the skin (:func:`ncflow.flow.skinning.surface_skin`: the islands too).
+    """
+    if problem.skinning_weights["mode"] == "surface":
+        skeleton = problem.skeleton_normalized
+        return surface_skin(vertices, faces, skeleton.positions, skeleton.parents)
+    return outward_vertex_normals(vertices, faces)
+
+
 def tissue_anchored(config, weight_mode: str) -> bool:
     """Whether a tissue stencil's points take the bone weights of its centre (``flow.tissue_anchor``:
     "on", "off", or "auto": where the weights are those of the start seeing the skin, ``"surface"``, the
@@ -176,10 +189,10 @@ class Arrays:
         centroids[:k] = problem.centroids
         topo, v = problem.source_topology, np.asarray(problem.working.vertices)
         nv, ne = v.shape[0], topo.n_edges
-        normals = outward_vertex_normals(v, np.asarray(problem.working.faces))
+        normals = start_normals(v, np.asarray(problem.working.faces), problem)
         if pad:
             v, topo = pad_mesh(v, topo)
-            normals = np.concatenate([normals, np.zeros((v.shape[0] - nv, 3))])
+            normals = np.concatenate([normals, np.zeros((v.shape[0] - nv, normals.shape[1]))])
         return cls(
             source=jnp.asarray(v, DTYPE),
             normals=jnp.asarray(normals, DTYPE),
@@ -278,7 +291,8 @@ def objective(
         if s.tissue_anchor:
             anchors = jnp.concatenate([*parts[:2], jnp.tile(tissue, (4, 1))])
     points = jnp.concatenate(parts)
-    normals = jnp.concatenate([arrays.normals, jnp.zeros((points.shape[0] - nv, 3), DTYPE)])  # samples: none
+    none = jnp.zeros((points.shape[0] - nv, arrays.normals.shape[1]), DTYPE)  # samples: no normal
+    normals = jnp.concatenate([arrays.normals, none])
     xs, _ = integrate(params.flow, points, s.n_times, normals=normals, anchors=anchors)
     surf = xs[:, :nv]
     flowed_bones = xs[:, nv : nv + nb].reshape(s.n_times, *bones.shape)

@@ -51,7 +51,7 @@ def output_flow_program(skeleton, radii, ranges, n_times: int):
     def output_flow(field, points, normals, times, key):
         bones = sample_bones(skeleton, key, FINAL_BONE_SAMPLES, radius=radii, axial_range=ranges, dtype=DTYPE).points
         flat = bones.reshape(-1, 3)
-        n = jnp.concatenate([normals, jnp.zeros_like(flat)])  # bone samples: no normal
+        n = jnp.concatenate([normals, jnp.zeros((flat.shape[0], normals.shape[1]), normals.dtype)])  # samples: none
         xs, vs = integrate(field, jnp.concatenate([points, flat]), n_times, normals=n)
         m = points.shape[0]
         return hermite(xs[:, :m], vs[:, :m], times), bones, xs[:, m:].reshape(n_times, *bones.shape)
@@ -105,13 +105,15 @@ class OutputPrograms:
             output_refit_program(arrays.skeleton, config),
         )
 
-    def compile(self, field, source: np.ndarray, config, key, pose: Pose, n_bones: int) -> None:
+    def compile(self, field, source: np.ndarray, config, key, pose: Pose, n_bones: int, n_normal: int = 3) -> None:
         """Compile both for a field of ``field``'s structure and a source of ``source``'s size,
         without running them: the arguments :func:`build_result` passes (``pose``, ``key`` and the
-        field's values do not matter).
+        field's values do not matter; ``n_normal``: the columns of the start normals,
+        :func:`ncflow.matcher.objective.start_normals`).
         """
         frame_times = output_frame_times(config)
-        self.flow.lower(field, *output_flow_inputs(source, np.zeros_like(source), frame_times), key).compile()
+        normals = np.zeros((len(source), n_normal))
+        self.flow.lower(field, *output_flow_inputs(source, normals, frame_times), key).compile()
         bones = jnp.zeros((n_bones, FINAL_BONE_SAMPLES, 3), DTYPE)
         states = jnp.zeros((config.flow.n_times, *bones.shape), DTYPE)
         lam, cw = jnp.zeros((2, n_bones), DTYPE), jnp.zeros(2, DTYPE)
@@ -169,7 +171,8 @@ def build_programs(setup: Setup, config, keys) -> Programs:
 
     def compile_outputs():
         field = training.init(k_init, start).flow
-        outputs.compile(field, setup.source_vertices, config, k_eval, rest, skeleton.n_bones)
+        n_normal = arrays.normals.shape[1]
+        outputs.compile(field, setup.source_vertices, config, k_eval, rest, skeleton.n_bones, n_normal)
 
     ahead = CompileAhead([("training", compile_training), ("outputs", compile_outputs)])
     return Programs(arrays, stages, training, outputs, ahead)

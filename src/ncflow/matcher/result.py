@@ -25,12 +25,12 @@ import numpy as np
 from ncflow import __version__
 from ncflow.config import config_to_dict
 from ncflow.flow import flow_points
-from ncflow.geometry.mesh import Mesh, outward_vertex_normals
+from ncflow.geometry.mesh import Mesh
 from ncflow.geometry.normalize import Normalization
 from ncflow.io.fallback import save_result
 from ncflow.io.result import ResultFolder
 from ncflow.matcher.correspondence import correspondence_maps
-from ncflow.matcher.objective import fit_start
+from ncflow.matcher.objective import fit_start, start_normals
 from ncflow.matcher.partial import Shown, shown_share
 from ncflow.matcher.place import Placed
 from ncflow.matcher.placement import Placement
@@ -91,7 +91,8 @@ class MatchResult:
         Returns (N, 3) at t = 1, or (Q, N, 3) at the given times (the target's placement included,
         as in :attr:`frames`). ``normals`` (N, 3): the outward surface normals at the points, read where
         the bone weights see the skin (``metrics["skinning_weights"]["mode"] == "surface"``; without
-        them such points take the plain weights of the start).
+        them such points take the plain weights of the start), or (N, 3 + B) with the bones each point
+        may not take, as the match's own (:func:`ncflow.flow.surface_skin` of the points' mesh).
         """
         p = jnp.asarray(self.normalization.apply(np.asarray(points, np.float64)), DTYPE)
         n = None if normals is None else jnp.asarray(normals, DTYPE)
@@ -202,7 +203,7 @@ def build_result(
     src_v = setup.source_vertices
     frame_times = output_frame_times(cfg)
     arrays, outputs = programs.arrays, programs.outputs
-    normals = outward_vertex_normals(src_v, setup.source.faces)
+    normals = start_normals(src_v, setup.source.faces, setup)
     field = state.params.flow
     frames_n, bones, states = output_motion(
         field, src_v, normals, frame_times, cfg.flow.n_times, arrays.skeleton, arrays.radii, key, outputs.flow

@@ -50,7 +50,7 @@ from jaxtyping import Float, Int
 from scipy.spatial.transform import Rotation
 
 from ncflow.errors import InputError, ResultError
-from ncflow.geometry.mesh import outward_vertex_normals
+from ncflow.flow.skinning import surface_skin
 from ncflow.io.atomic import atomic_path, check_output_file
 from ncflow.io.bvh import write_bvh
 from ncflow.io.gltf.document import unique_names
@@ -302,7 +302,7 @@ def rig_result(
     else:
         width = _skinning_width(res.metrics)
         seen = (res.metrics.get("skinning_weights") or {}).get("mode") == "surface"  # as the match's field
-        normals = outward_vertex_normals(source, res.source_faces) if seen else None
+        normals = surface_skin(source, res.source_faces, sk_frames[0], parents) if seen else None
         w_source = skeleton_weights(source, sk_frames[0], parents, width, normals)
         weights_from = "skeleton"
     diag = float(np.linalg.norm(np.ptp(tv, axis=0)))

@@ -275,21 +275,23 @@ def skeleton_weights(
     rest_positions: Float[np.ndarray, "J 3"],
     parents: Int[np.ndarray, " J"],
     width: float = DEFAULT_SKINNING_WIDTH,
-    normals: Float[np.ndarray, "V 3"] | None = None,
+    normals: Float[np.ndarray, "V C"] | None = None,
 ) -> Float[np.ndarray, "V J"]:
     """Per-joint skin weights of the skeleton-driven flow field at rest (:func:`ncflow.flow.skinning.skinning_weights`).
 
     Bone weights ``softmax_b(−d_b(x)/τ)`` (d_b the distance to bone b's segment, τ = ``width`` ×
     the median bone length), each bone's weight given to its parent joint (module docstring). With the
-    vertices' outward ``normals``, the bones in front of the skin are left out, as the field's weights
-    of a match that saw the skin (``"surface"``, :func:`ncflow.flow.skinning.surface_skinning_weights`).
+    vertices' outward ``normals``, the bones in front of the skin (and the islands' bones,
+    :func:`ncflow.flow.skinning.skin_islands`) are left out, as the field's weights of a match that saw
+    the skin (``"surface"``, :func:`ncflow.flow.skinning.surface_skinning_weights`).
 
     Args:
         vertices: (V, 3) the rest source.
         rest_positions: (J, 3) the skeleton at rest, topological order.
         parents: (J,) parents (−1 for the root, ``parents[j] < j``).
         width: τ as a fraction of the median bone length.
-        normals: (V, 3) the rest source's outward vertex normals, or None (the plain weights).
+        normals: (V, 3) the rest source's outward vertex normals, or (V, 3 + J − 1) with the bones each
+            vertex may not take (:func:`ncflow.flow.skinning.surface_skin`), or None (the plain weights).
 
     Returns:
         (V, J) weights, rows summing to 1; joints that start no bone (leaves) get 0.
@@ -310,7 +312,8 @@ def skeleton_weights(
         bone_w = skinning_weights(jnp.asarray(xs, jnp.float32), *bones, float(width))
     else:
         n = jnp.asarray(normals, jnp.float32)
-        bone_w = surface_skinning_weights(jnp.asarray(xs, jnp.float32), n, *bones, float(width))
+        excluded = n[:, 3:] > 0.5 if n.shape[1] > 3 else None
+        bone_w = surface_skinning_weights(jnp.asarray(xs, jnp.float32), n[:, :3], *bones, float(width), excluded)
     bone_w = np.asarray(bone_w, dtype=np.float64)
     w = bone_w @ _joint_matrix(par)
     return w / w.sum(1, keepdims=True)

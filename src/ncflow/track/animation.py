@@ -73,10 +73,10 @@ def sequence_motion(
     registered: Float[np.ndarray, "K V 3"],
     frame_joints: Float[np.ndarray, "K J 3"],
     skinning_width: float,
-    normals: Float[np.ndarray, "V 3"] | None = None,
+    normals: Float[np.ndarray, "V C"] | None = None,
 ) -> SequenceMotion:
     """The skeleton's motion from its rest pose to every tracked frame (module docstring); ``normals``:
-    the source's outward vertex normals where the matches' bone weights saw the skin
+    the source's outward vertex normals and islands where the matches' bone weights saw the skin
     (:func:`ncflow.retarget.weights.skeleton_weights`).
     """
     rest = np.asarray(rest_joints, np.float64)

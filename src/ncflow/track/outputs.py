@@ -20,7 +20,8 @@ import numpy as np
 
 from ncflow import __version__
 from ncflow.config import Config, config_to_dict
-from ncflow.geometry.mesh import Mesh, outward_vertex_normals
+from ncflow.flow.skinning import surface_skin
+from ncflow.geometry.mesh import Mesh
 from ncflow.geometry.rigid import dense_weights, linear_blend_skinning
 from ncflow.io.atomic import atomic_path, atomic_write_text
 from ncflow.io.bvh import write_bvh
@@ -104,7 +105,7 @@ def write_sequence_outputs(
     joints = np.asarray([r["joints"] for r in ok], np.float64)
     names = unique_names(list(skel.names or [None] * skel.n_joints))
     seen = ok[0].get("weight_mode") == "surface"  # the frames' bone weights saw the skin
-    normals = outward_vertex_normals(source.vertices, source.faces) if seen else None
+    normals = surface_skin(source.vertices, source.faces, skel.positions, skel.parents) if seen else None
     motion = sequence_motion(
         source.vertices, skel.positions, skel.parents, registered, joints, config.flow.skinning_width, normals
     )
