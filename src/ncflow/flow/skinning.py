@@ -191,10 +191,16 @@ def skin_islands(
     v, f = np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
     n, a, b = (np.asarray(z, np.float64) for z in (normals, heads, tails))
     ab = b - a
-    u = np.clip(((v @ ab.T) - np.sum(a * ab, 1)) / np.maximum(np.sum(ab * ab, 1), 1e-300), 0.0, 1.0)
-    near = a[None] + u[..., None] * ab[None]  # (V, B, 3) each bone's nearest point
-    dist = np.linalg.norm(near - v[:, None], axis=-1)
-    dist[np.einsum("vbk,vk->vb", near - v[:, None], n) > 0.0] = np.inf  # in front of the skin
+    ab2 = np.maximum(np.sum(ab * ab, 1), 1e-300)
+    dist = np.empty((len(v), len(a)))
+    tol = 1e-6 * float(np.ptp(v, axis=0).max(initial=0.0))  # a joint on the skin (to rounding) is not in front
+    for lo in range(0, len(v), _CHUNK):  # (V, B) products only, a chunk of vertices at a time
+        x, nx = v[lo : lo + _CHUNK], n[lo : lo + _CHUNK]
+        ap_ab = x @ ab.T - np.sum(a * ab, 1)  # (x − a)·(b − a)
+        u = np.clip(ap_ab / ab2, 0.0, 1.0)
+        d2 = np.sum(x * x, 1)[:, None] - 2.0 * x @ a.T + np.sum(a * a, 1) - 2.0 * u * ap_ab + u * u * ab2
+        front = nx @ a.T + u * (nx @ ab.T) - np.sum(x * nx, 1)[:, None] > tol  # (nearest point − x)·n
+        dist[lo : lo + _CHUNK] = np.where(front, np.inf, np.sqrt(np.maximum(d2, 0.0)))
     excluded = np.zeros(dist.shape, bool)
     if f.shape[0] == 0 or dist.shape[1] < 2:
         return excluded
@@ -211,6 +217,9 @@ def skin_islands(
             break
         excluded[np.nonzero(island)[0], bone[island]] = True
     return excluded
+
+
+_CHUNK = 65536
 
 
 def surface_skin(
