@@ -301,17 +301,21 @@ def test_geodesic_errors_on_a_soup_are_those_of_the_welded_source():
     assert np.all(np.isfinite(clean))  # on the soup as given, every pair would be apart (+inf)
 
 
-def test_vertex_components_match_a_brute_force_flood_fill():
+@pytest.mark.parametrize("some_edges", [False, True])
+def test_vertex_components_match_a_brute_force_flood_fill(some_edges):
+    """With ``joined``, only the kept face edges (corner k to corner k + 1) join their vertices."""
     from ncflow.geometry.topology import vertex_components
 
     rng = np.random.default_rng(7)
     faces = rng.integers(0, 40, size=(25, 3))
-    labels = vertex_components(faces, 45)  # vertices 40–44 and unreferenced ones: components of their own
+    joined = rng.random((25, 3)) < 0.5 if some_edges else None
+    labels = vertex_components(faces, 45, joined)  # vertices 40–44 and unreferenced ones: components of their own
     neighbours = {i: set() for i in range(45)}
-    for a, b, c in faces.tolist():
-        for x, y in ((a, b), (b, c), (c, a)):
-            neighbours[x].add(y)
-            neighbours[y].add(x)
+    for i, (a, b, c) in enumerate(faces.tolist()):
+        for k, (x, y) in enumerate(((a, b), (b, c), (c, a))):
+            if joined is None or joined[i, k]:
+                neighbours[x].add(y)
+                neighbours[y].add(x)
     for start in range(45):
         seen, todo = {start}, [start]
         while todo:

@@ -600,6 +600,9 @@ def test_skin_islands_take_the_palms_skin_off_a_sunk_fingertip():
     expected = np.zeros_like(out)
     expected[given == tip, tip] = True
     np.testing.assert_array_equal(out, expected)
+    shift = np.array([5.0, -3.0, 2.0])  # the same in other units and elsewhere
+    moved = skin_islands(v * 0.01 + shift, f, n, heads * 0.01 + shift, tails * 0.01 + shift, skel.bone_hops <= 1)
+    np.testing.assert_array_equal(moved, expected)
     chain = Skeleton.from_arrays(skel.positions[:5], skel.parents[:5])
     h5, t5 = chain.positions[chain.bones[:, 0]], chain.positions[chain.bones[:, 1]]
     assert not skin_islands(v, f, n, h5, t5, chain.bone_hops <= 1).any()
