@@ -579,7 +579,7 @@ def test_skin_islands_take_the_palms_skin_off_a_sunk_fingertip():
     a brute force (dense segment sampling, the front test) gives to it, and nothing else; a chain without
     the sunk bone loses nothing. Turning the tip's joint then carries the patch off with the normals
     alone and leaves it in place with the islands (``surface_skin``'s columns)."""
-    from ncflow.flow.skinning import skin_islands, surface_skin
+    from ncflow.flow.islands import skin_islands, surface_skin
     from ncflow.geometry.mesh import outward_vertex_normals
 
     v, f, skel = _sunk_fingertip()
@@ -627,7 +627,7 @@ def test_exported_skin_weights_leave_the_islands_bones_out():
     """``skeleton_weights`` (the rig's and the track's per-joint weights) reads ``surface_skin``'s columns as
     the field does: the patch over the sunk tip gets (almost) no weight from the tip's joint with them, and
     most of it from the outward normals alone (more than 0.4 everywhere, 0.75 on average)."""
-    from ncflow.flow.skinning import surface_skin
+    from ncflow.flow.islands import surface_skin
     from ncflow.geometry.mesh import outward_vertex_normals
     from ncflow.retarget.weights import skeleton_weights
 

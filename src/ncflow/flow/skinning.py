@@ -33,11 +33,11 @@ Where the weights are taken (``weight_mode``):
   lies in front of the skin is left out. In a source whose limbs touch (a fist: the palm's skin under
   the fingertips is nearer the fingers' bones than its own), the plain weights give that skin to the
   touching limb, and straightening the limb tears it off its own part. A mesh's start normals may
-  carry one more column per bone (:func:`surface_skin`): 1 leaves the bone out for that point too,
-  where :func:`skin_islands` finds its skin cut off from the bone's limb along the surface (a captured
-  fist's fingertip sunk into the palm: its bone lies *behind* the palm's skin, where the front test
-  cannot tell). Points without a normal (bone and tissue samples: a zero row) take the plain weights
-  of ``"start"``.
+  carry one more column per bone (:func:`ncflow.flow.islands.surface_skin`): 1 leaves the bone out
+  for that point too, where :func:`~ncflow.flow.islands.skin_islands` finds its skin cut off from the
+  bone's limb along the surface (a captured fist's fingertip sunk into the palm: its bone lies
+  *behind* the palm's skin, where the front test cannot tell). Points without a normal (bone and
+  tissue samples: a zero row) take the plain weights of ``"start"``.
 
 The matcher chooses between them per pair (``flow.skinning_weights = "auto"``, see
 :func:`ncflow.matcher.prepare.skinning_weight_mode`).
@@ -69,7 +69,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from ncflow.flow.integrate import time_grid
 from ncflow.skeleton import Skeleton
@@ -152,8 +152,8 @@ def surface_skinning_weights(
     :func:`skinning_weights`, but a bone whose nearest point lies in front of the surface at x (on the
     outer side of its normal: in a fist, the fingertip resting on the palm's skin, nearer that skin than
     the palm's own bone) is left out, so the skin moves with the part it covers, and so is a bone
-    ``excluded`` for the point (:func:`skin_islands`: a fingertip sunk into the palm, whose bone lies
-    behind the palm's skin). Where every bone is left out (a normal turned the wrong way), all are kept
+    ``excluded`` for the point (:func:`ncflow.flow.islands.skin_islands`: a fingertip sunk into the palm,
+    whose bone lies behind the palm's skin). Where every bone is left out (a normal turned the wrong way), all are kept
     alike: the plain weights.
     """
     u, d = _segment_projection(x, heads, tails)
@@ -162,86 +162,6 @@ def surface_skinning_weights(
     if excluded is not None:
         front = front | excluded
     return jax.nn.softmax(-(d + jnp.where(front, FRONT_PENALTY * width, 0.0)) / width, axis=-1)
-
-
-def skin_islands(
-    vertices: Float[np.ndarray, "V 3"],
-    faces: Int[np.ndarray, "F 3"],
-    normals: Float[np.ndarray, "V 3"],
-    heads: Float[np.ndarray, "B 3"],
-    tails: Float[np.ndarray, "B 3"],
-    adjacent: Bool[np.ndarray, "B B"],
-    max_rounds: int = 8,
-) -> Bool[np.ndarray, "V B"]:
-    """Bones each vertex may not take in :func:`surface_skinning_weights`: those whose skin would be an
-    island, cut off from the body along the surface.
-
-    A vertex's bone is the nearest one not in front of its skin. Kept are the mesh edges whose two
-    vertices have the same bone or ``adjacent`` ones (bones that share a joint); the skin of a body
-    is then one connected piece from the root's bones out to every tip, and a patch in another piece is
-    skin given to a limb that lies *behind* it without covering it: a captured fist's fingertip sunk
-    into the palm (its bone inside the palm, under the palm's skin, where the front test cannot see
-    it), a thumb pressed into a finger. Each such patch loses its bone, and the bones are chosen again,
-    until every vertex's bone is in the largest piece (by area) or ``max_rounds`` is reached. Pure
-    NumPy and a SciPy graph: a per-mesh precomputation, done once.
-    """
-    from ncflow.geometry.laplacian import lumped_mass
-    from ncflow.geometry.topology import vertex_components
-
-    v, f = np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
-    n, a, b = (np.asarray(z, np.float64) for z in (normals, heads, tails))
-    ab = b - a
-    ab2 = np.maximum(np.sum(ab * ab, 1), 1e-300)
-    dist = np.empty((len(v), len(a)))
-    tol = 1e-6 * float(np.ptp(v, axis=0).max(initial=0.0))  # a joint on the skin (to rounding) is not in front
-    for lo in range(0, len(v), _CHUNK):  # (V, B) products only, a chunk of vertices at a time
-        x, nx = v[lo : lo + _CHUNK], n[lo : lo + _CHUNK]
-        ap_ab = x @ ab.T - np.sum(a * ab, 1)  # (x − a)·(b − a)
-        u = np.clip(ap_ab / ab2, 0.0, 1.0)
-        d2 = np.sum(x * x, 1)[:, None] - 2.0 * x @ a.T + np.sum(a * a, 1) - 2.0 * u * ap_ab + u * u * ab2
-        front = nx @ a.T + u * (nx @ ab.T) - np.sum(x * nx, 1)[:, None] > tol  # (nearest point − x)·n
-        dist[lo : lo + _CHUNK] = np.where(front, np.inf, np.sqrt(np.maximum(d2, 0.0)))
-    excluded = np.zeros(dist.shape, bool)
-    if f.shape[0] == 0 or dist.shape[1] < 2:
-        return excluded
-    area = lumped_mass(v, f)
-    for _ in range(max_rounds):
-        d = np.where(excluded, np.inf, dist)
-        bone = np.where(np.isfinite(d).any(1), d.argmin(1), -1)
-        one, other = bone[f], bone[f[:, [1, 2, 0]]]  # (F, 3) the bones at each face edge's two ends
-        joined = (one >= 0) & (other >= 0) & adjacent[np.maximum(one, 0), np.maximum(other, 0)]
-        label = vertex_components(f, len(v), joined)
-        size = np.bincount(label, weights=area)
-        island = (label != size.argmax()) & (bone >= 0)
-        if not island.any():
-            break
-        excluded[np.nonzero(island)[0], bone[island]] = True
-    return excluded
-
-
-_CHUNK = 65536
-
-
-def surface_skin(
-    vertices: Float[np.ndarray, "V 3"],
-    faces: Int[np.ndarray, "F 3"],
-    positions: Float[np.ndarray, "J 3"],
-    parents: Int[np.ndarray, " J"],
-) -> Float[np.ndarray, "V C"]:
-    """What a :class:`SkinnedField` with ``weight_mode="surface"`` reads as a mesh's start normals, C = 3 + B:
-    the outward vertex normals, then one column per bone (parents[j] → j, j = 1..J−1, the order of
-    :attr:`Skeleton.bones`) of the skeleton at ``positions`` (the mesh's coordinates), 1 where
-    :func:`skin_islands` leaves the bone out (bones that share a joint are adjacent).
-    """
-    from ncflow.geometry.mesh import outward_vertex_normals
-
-    v, f = np.asarray(vertices, np.float64), np.asarray(faces)
-    pos, par = np.asarray(positions, np.float64), np.asarray(parents, np.int64)
-    normals = outward_vertex_normals(v, f)
-    ends = np.stack([par[1:], np.arange(1, len(par))], axis=1)
-    adjacent = (ends[:, None, :, None] == ends[None, :, None, :]).any(axis=(2, 3))
-    islands = skin_islands(v, f, normals, pos[ends[:, 0]], pos[ends[:, 1]], adjacent)
-    return np.concatenate([normals, islands.astype(np.float64)], axis=1)
 
 
 FRONT_PENALTY = 1e3

@@ -34,7 +34,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int, PRNGKeyArray
 
 from ncflow.flow import GSONet, integrate, time_grid
-from ncflow.flow.skinning import surface_skin
+from ncflow.flow.islands import surface_skin
 from ncflow.geometry.mesh import outward_vertex_normals
 from ncflow.geometry.topology import Topology
 from ncflow.jit.buckets import bucket, pad_mesh
@@ -129,7 +129,7 @@ def start_normals(
     vertices: Float[np.ndarray, "V 3"], faces: Int[np.ndarray, "F 3"], problem: Setup
 ) -> Float[np.ndarray, "V C"]:
     """(V, 3) outward vertex normals of a source mesh in the problem's normalised coordinates, or (V, 3 + B)
-    where its bone weights see the skin (:func:`ncflow.flow.skinning.surface_skin`: the islands too).
+    where its bone weights see the skin (:func:`ncflow.flow.islands.surface_skin`: the islands too).
     """
     if problem.skinning_weights["mode"] == "surface":
         skeleton = problem.skeleton_normalized

@@ -50,7 +50,7 @@ from jaxtyping import Float, Int
 from scipy.spatial.transform import Rotation
 
 from ncflow.errors import InputError, ResultError
-from ncflow.flow.skinning import surface_skin
+from ncflow.flow.islands import surface_skin
 from ncflow.io.atomic import atomic_path, check_output_file
 from ncflow.io.bvh import write_bvh
 from ncflow.io.gltf.document import unique_names

@@ -282,7 +282,7 @@ def skeleton_weights(
     Bone weights ``softmax_b(−d_b(x)/τ)`` (d_b the distance to bone b's segment, τ = ``width`` ×
     the median bone length), each bone's weight given to its parent joint (module docstring). With the
     vertices' outward ``normals``, the bones in front of the skin (and the islands' bones,
-    :func:`ncflow.flow.skinning.skin_islands`) are left out, as the field's weights of a match that saw
+    :func:`ncflow.flow.islands.skin_islands`) are left out, as the field's weights of a match that saw
     the skin (``"surface"``, :func:`ncflow.flow.skinning.surface_skinning_weights`).
 
     Args:
@@ -291,7 +291,7 @@ def skeleton_weights(
         parents: (J,) parents (−1 for the root, ``parents[j] < j``).
         width: τ as a fraction of the median bone length.
         normals: (V, 3) the rest source's outward vertex normals, or (V, 3 + J − 1) with the bones each
-            vertex may not take (:func:`ncflow.flow.skinning.surface_skin`), or None (the plain weights).
+            vertex may not take (:func:`ncflow.flow.islands.surface_skin`), or None (the plain weights).
 
     Returns:
         (V, J) weights, rows summing to 1; joints that start no bone (leaves) get 0.

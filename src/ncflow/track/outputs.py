@@ -20,7 +20,7 @@ import numpy as np
 
 from ncflow import __version__
 from ncflow.config import Config, config_to_dict
-from ncflow.flow.skinning import surface_skin
+from ncflow.flow.islands import surface_skin
 from ncflow.geometry.mesh import Mesh
 from ncflow.geometry.rigid import dense_weights, linear_blend_skinning
 from ncflow.io.atomic import atomic_path, atomic_write_text
