@@ -19,6 +19,9 @@ from ncflow.geometry.laplacian import lumped_mass
 from ncflow.geometry.mesh import outward_vertex_normals
 from ncflow.geometry.topology import vertex_components
 
+_CHUNK = 65536
+"""Vertices per block of :func:`skin_islands`' (V, B) products (bounded memory on large meshes)."""
+
 
 def skin_islands(
     vertices: Float[np.ndarray, "V 3"],
@@ -39,7 +42,9 @@ def skin_islands(
     into the palm (its bone inside the palm, under the palm's skin, where the front test cannot see
     it), a thumb pressed into a finger. Each such patch loses its bone, and the bones are chosen again,
     until every vertex's bone is in the largest piece (by area) or ``max_rounds`` is reached. Pure
-    NumPy and a SciPy graph: a per-mesh precomputation, done once.
+    NumPy and a SciPy graph: a per-mesh precomputation, done once, in float64 with a rounding tolerance
+    on the front test (the field's float32 test, ``> 0``, would make the exclusions depend on units and
+    placement where a joint lies on the skin).
     """
     v, f = np.asarray(vertices, np.float64), np.asarray(faces, np.int64)
     n, a, b = (np.asarray(z, np.float64) for z in (normals, heads, tails))
@@ -70,9 +75,6 @@ def skin_islands(
             break
         excluded[np.nonzero(island)[0], bone[island]] = True
     return excluded
-
-
-_CHUNK = 65536
 
 
 def surface_skin(

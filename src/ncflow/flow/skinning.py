@@ -142,25 +142,25 @@ def skinning_weights(
 
 def surface_skinning_weights(
     x: Float[Array, "N 3"],
-    normals: Float[Array, "N 3"],
+    normals: Float[Array, "N C"],
     heads: Float[Array, "B 3"],
     tails: Float[Array, "B 3"],
     width: float | Float[Array, ""],
-    excluded: Bool[Array, "N B"] | None = None,
 ) -> Float[Array, "N B"]:
     """Bone weights of surface points that see which bones lie under their skin: as
     :func:`skinning_weights`, but a bone whose nearest point lies in front of the surface at x (on the
     outer side of its normal: in a fist, the fingertip resting on the palm's skin, nearer that skin than
-    the palm's own bone) is left out, so the skin moves with the part it covers, and so is a bone
-    ``excluded`` for the point (:func:`ncflow.flow.islands.skin_islands`: a fingertip sunk into the palm,
-    whose bone lies behind the palm's skin). Where every bone is left out (a normal turned the wrong way), all are kept
-    alike: the plain weights.
+    the palm's own bone) is left out, so the skin moves with the part it covers. ``normals`` (N, 3), or
+    (N, 3 + B) as :func:`ncflow.flow.islands.surface_skin` gives them: a column at 1 leaves that bone out
+    too (an island: a fingertip sunk into the palm, whose bone lies behind the palm's skin). Where every
+    bone is left out (a normal turned the wrong way), all are kept alike: the plain weights.
     """
+    n = normals[:, :3]
     u, d = _segment_projection(x, heads, tails)
     # (nearest point − x)·n = a·n + u (b − a)·n − x·n, in (N, B) products as the distance is
-    front = _mm(normals, heads.T) + u * _mm(normals, (tails - heads).T) - jnp.sum(x * normals, -1)[:, None] > 0.0
-    if excluded is not None:
-        front = front | excluded
+    front = _mm(n, heads.T) + u * _mm(n, (tails - heads).T) - jnp.sum(x * n, -1)[:, None] > 0.0
+    if normals.shape[1] > 3:
+        front = front | (normals[:, 3:] > 0.5)
     return jax.nn.softmax(-(d + jnp.where(front, FRONT_PENALTY * width, 0.0)) / width, axis=-1)
 
 
@@ -353,9 +353,7 @@ class SkinnedField(eqx.Module):
 
     def _start_weights(self, x0, n0, heads, tails):
         if self.weight_mode == "surface" and n0 is not None:
-            n0 = jnp.asarray(n0, x0.dtype)
-            excluded = n0[:, 3:] > 0.5 if n0.shape[1] > 3 else None
-            return surface_skinning_weights(x0, n0[:, :3], heads, tails, self._width(), excluded)
+            return surface_skinning_weights(x0, jnp.asarray(n0, x0.dtype), heads, tails, self._width())
         return skinning_weights(x0, heads, tails, self._width())
 
     def _width(self) -> Float[Array, ""]:

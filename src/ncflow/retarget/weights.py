@@ -312,8 +312,7 @@ def skeleton_weights(
         bone_w = skinning_weights(jnp.asarray(xs, jnp.float32), *bones, float(width))
     else:
         n = jnp.asarray(normals, jnp.float32)
-        excluded = n[:, 3:] > 0.5 if n.shape[1] > 3 else None
-        bone_w = surface_skinning_weights(jnp.asarray(xs, jnp.float32), n[:, :3], *bones, float(width), excluded)
+        bone_w = surface_skinning_weights(jnp.asarray(xs, jnp.float32), n, *bones, float(width))
     bone_w = np.asarray(bone_w, dtype=np.float64)
     w = bone_w @ _joint_matrix(par)
     return w / w.sum(1, keepdims=True)
