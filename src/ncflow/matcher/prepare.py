@@ -36,7 +36,7 @@ from ncflow.matcher.inputs import (
     load_inputs,
 )
 from ncflow.skeleton import Skeleton
-from ncflow.skeleton.checks import bones_partly_outside, flesh_radius, inside_axial_ranges
+from ncflow.skeleton.checks import bones_partly_outside, clear_axial_ranges, flesh_radius, inside_axial_ranges
 from ncflow.skeleton.suggest import BASES, suggest_skeletons
 from ncflow.tissue import centroids_digest, load_tissue_file, tissue_centroids
 
@@ -68,7 +68,9 @@ class Setup:
         target_topology: edge table of the target (``target_faces``).
         bone_radii: (B,) bone-sample radius factor per bone (:func:`bone_radii`).
         bone_ranges: (B, 2) the part of each bone (z / L) its samples and rigid core cover: the part of
-            its axis inside the working source (:func:`ncflow.skeleton.checks.inside_axial_ranges`).
+            its axis inside the working source (:func:`ncflow.skeleton.checks.inside_axial_ranges`) and,
+            with the rigid cores, clear of other bones' samples
+            (:func:`ncflow.skeleton.checks.clear_axial_ranges`).
         bone_inside: (B,) the share of each bone's axis inside the working source.
         centroids: (K, 3) soft-tissue tet centroids of the normalised source ((0, 3) when disabled).
         tissue_info: how the centroids were obtained (cache hit, counts, seconds).
@@ -258,6 +260,9 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Setu
         skel_n = skel.with_positions(norm.apply(skel.positions))
         ranges, inside = inside_axial_ranges(skel_n, work.vertices, work.faces)
         weights = skinning_weight_mode(config, work.vertices, work.faces, tgt_c.vertices, tgt_f, skel_n, ranges)
+        radii = bone_radii(config, skel_n, flesh_radius(skel_n, work.vertices))
+        if config.flow.skinning and config.flow.rigid_core > 0:  # samples and cores where no other bone's are
+            ranges = clear_axial_ranges(skel_n, ranges, radii)
         warnings.extend(bones_partly_outside(skel, inside))
         if weights["mode"] == "surface" and config.flow.skinning_weights == "auto":
             shown(
@@ -285,7 +290,7 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Setu
                 skeleton_normalized=skel_n,
                 source_topology=source_topology,
                 target_topology=target_topology,
-                bone_radii=bone_radii(config, skel_n, flesh_radius(skel_n, work.vertices)),
+                bone_radii=radii,
                 bone_ranges=ranges,
                 bone_inside=inside,
                 centroids=centroids,

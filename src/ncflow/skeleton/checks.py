@@ -85,6 +85,9 @@ def check_inside_at(
 AXIS_PROBES = 17
 """Points per bone axis at which :func:`inside_axial_ranges` asks whether the bone is inside its mesh."""
 
+_CLEAR_CHUNK = 1 << 20
+"""Probe–bone pairs a block of :func:`clear_axial_ranges` (bounded memory for a skeleton of many bones)."""
+
 
 def inside_axial_ranges(
     skeleton: Skeleton,
@@ -115,15 +118,69 @@ def inside_axial_ranges(
     tri = np.asarray(vertices, np.float64)[np.asarray(faces, np.int64)]
     inside = np.abs(winding_numbers(probes.reshape(-1, 3), tri)).reshape(vec.shape[0], AXIS_PROBES) >= 0.5
     ranges = np.tile([lo, hi], (vec.shape[0], 1)).astype(np.float64)
-    half = 0.5 * (hi - lo) / (AXIS_PROBES - 1)
-    for b, row in enumerate(inside):
+    runs = _longest_runs(inside, np.broadcast_to(z, inside.shape), ranges, 0.5 * (hi - lo) / (AXIS_PROBES - 1))
+    return runs, inside.mean(axis=1)
+
+
+def _longest_runs(keep, z, ranges, widen: float):
+    """Per row of ``keep`` (B, P) (the probes at shares ``z`` (B, P) of each bone's length, over its
+    ``ranges`` (B, 2)): the longest run of kept probes, widened by ``widen`` at each end within the bone's
+    range; the range itself where every probe or none is kept.
+    """
+    out = np.array(ranges, np.float64)
+    for b, row in enumerate(keep):
         if row.all() or not row.any():
             continue
         edges = np.diff(np.concatenate([[0], row.astype(np.int8), [0]]))
         starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
         k = int(np.argmax(ends - starts))
-        ranges[b] = max(lo, z[starts[k]] - half), min(hi, z[ends[k]] + half)
-    return ranges, inside.mean(axis=1)
+        out[b] = max(ranges[b, 0], z[b, starts[k]] - widen), min(ranges[b, 1], z[b, ends[k]] + widen)
+    return out
+
+
+def clear_axial_ranges(
+    skeleton: Skeleton, ranges: Float[np.ndarray, "B 2"], radii: Float[np.ndarray, " B"]
+) -> Float[np.ndarray, "B 2"]:
+    """Per bone, the part of ``ranges`` (z / L, e.g. :func:`inside_axial_ranges`') whose sample cylinder keeps
+    clear of every other bone's that does not share a joint with it: radius ρ_b L_b (``radii`` ρ, as
+    :func:`~ncflow.skeleton.samples.sample_bones` draws them). Where two bones' cylinders overlap — a
+    captured pinch or fist whose fingertips press into each other, bones nearly touching — a point of both
+    cannot move rigidly with each once they part, so neither bone is sampled (nor cored) there.
+
+    :data:`AXIS_PROBES` points over each bone's range are clear where their distance to every such bone's
+    axis (over its own range) is at least the sum of the two radii; the range kept is the longest clear run
+    (not widened); a bone with no clear probe, or no probe in contact, keeps its range.
+    """
+    ranges = np.asarray(ranges, np.float64)
+    pos, parents = np.asarray(skeleton.positions, np.float64), np.asarray(skeleton.parents)
+    heads, vec = pos[parents[1:]], pos[1:] - pos[parents[1:]]
+    n = vec.shape[0]
+    if n < 2:
+        return ranges.copy()
+    t = np.linspace(0.0, 1.0, AXIS_PROBES)
+    z = ranges[:, :1] + t[None, :] * (ranges[:, 1:] - ranges[:, :1])  # (B, P)
+    probes = heads[:, None, :] + z[..., None] * vec[:, None, :]  # (B, P, 3)
+    a, b = heads + ranges[:, :1] * vec, heads + ranges[:, 1:] * vec  # each bone's own range
+    ab = b - a
+    ab2 = np.maximum(np.sum(ab * ab, axis=1), 1e-300)
+    head_joint, tail_joint = parents[1:], np.arange(1, n + 1)
+    reach = np.asarray(radii, np.float64) * np.linalg.norm(vec, axis=1)
+    touching = np.zeros((n, AXIS_PROBES), bool)
+    step = max(1, _CLEAR_CHUNK // (AXIS_PROBES * n))  # bones a block: (step, P, B, 3) at most
+    for lo in range(0, n, step):
+        rows = slice(lo, lo + step)
+        x = probes[rows][:, :, None, :]  # (r, P, 1, 3)
+        u = np.clip(((x - a) * ab).sum(-1) / ab2, 0.0, 1.0)  # (r, P, B)
+        dist = np.linalg.norm(x - (a + u[..., None] * ab), axis=-1)
+        shared = (
+            (head_joint[rows, None] == head_joint)
+            | (head_joint[rows, None] == tail_joint)
+            | (tail_joint[rows, None] == head_joint)
+            | (tail_joint[rows, None] == tail_joint)
+        )  # (r, B): bones sharing a joint, itself included
+        near = dist < reach[rows, None, None] + reach[None, None, :]
+        touching[rows] = (near & ~shared[:, None, :]).any(axis=2)
+    return _longest_runs(~touching, z, ranges, 0.0)
 
 
 def bones_partly_outside(skeleton: Skeleton, inside: Float[np.ndarray, " B"], share: float = 0.5) -> list[str]:
