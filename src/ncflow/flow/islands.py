@@ -17,6 +17,7 @@ from jaxtyping import Bool, Float, Int
 
 from ncflow.geometry.laplacian import lumped_mass
 from ncflow.geometry.mesh import outward_vertex_normals
+from ncflow.geometry.skeleton import shared_joints
 from ncflow.geometry.topology import vertex_components
 
 _CHUNK = 65536
@@ -91,7 +92,5 @@ def surface_skin(
     v, f = np.asarray(vertices, np.float64), np.asarray(faces)
     pos, par = np.asarray(positions, np.float64), np.asarray(parents, np.int64)
     normals = outward_vertex_normals(v, f)
-    ends = np.stack([par[1:], np.arange(1, len(par))], axis=1)
-    adjacent = (ends[:, None, :, None] == ends[None, :, None, :]).any(axis=(2, 3))
-    islands = skin_islands(v, f, normals, pos[ends[:, 0]], pos[ends[:, 1]], adjacent)
+    islands = skin_islands(v, f, normals, pos[par[1:]], pos[1:], shared_joints(par))
     return np.concatenate([normals, islands.astype(np.float64)], axis=1)

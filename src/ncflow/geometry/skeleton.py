@@ -128,10 +128,7 @@ class Skeleton:
         """
         from scipy.sparse.csgraph import shortest_path
 
-        b = self.bones
-        incidence = np.zeros((b.shape[0], self.n_joints))
-        incidence[np.arange(b.shape[0]), b[:, 0]] = incidence[np.arange(b.shape[0]), b[:, 1]] = 1.0
-        adjacent = (incidence @ incidence.T > 0) & ~np.eye(b.shape[0], dtype=bool)
+        adjacent = shared_joints(self.parents) & ~np.eye(self.n_joints - 1, dtype=bool)
         return shortest_path(adjacent.astype(float), unweighted=True, directed=False).astype(np.int64)
 
     @property
@@ -196,6 +193,15 @@ class Skeleton:
 
 # ----------------------------------------------------------------------------------------------
 # validation
+
+
+def shared_joints(parents: Int[np.ndarray, " J"]) -> np.ndarray:
+    """(B, B) bool: whether two bones (parents[j] → j, j = 1..J−1, the order of :attr:`Skeleton.bones`)
+    share a joint — parent and child, siblings; every bone shares with itself.
+    """
+    par = np.asarray(parents, np.int64)
+    head, tail = par[1:], np.arange(1, par.shape[0])
+    return (head[:, None] == head) | (head[:, None] == tail) | (tail[:, None] == head) | (tail[:, None] == tail)
 
 
 def _default_labels(n: int, names=None) -> list[str]:

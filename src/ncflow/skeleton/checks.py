@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from jaxtyping import Float, Int
 
-from ncflow.geometry.skeleton import Skeleton
+from ncflow.geometry.skeleton import Skeleton, shared_joints
 from ncflow.geometry.topology import mesh_topology
 from ncflow.geometry.winding import winding_numbers
 from ncflow.skeleton.samples import DEFAULT_AXIAL_RANGE
@@ -152,34 +152,24 @@ def clear_axial_ranges(
     (not widened); a bone with no clear probe, or no probe in contact, keeps its range.
     """
     ranges = np.asarray(ranges, np.float64)
-    pos, parents = np.asarray(skeleton.positions, np.float64), np.asarray(skeleton.parents)
-    heads, vec = pos[parents[1:]], pos[1:] - pos[parents[1:]]
+    pos, bones = np.asarray(skeleton.positions, np.float64), np.asarray(skeleton.bones)
+    heads, vec = pos[bones[:, 0]], pos[bones[:, 1]] - pos[bones[:, 0]]
     n = vec.shape[0]
     if n < 2:
         return ranges.copy()
     t = np.linspace(0.0, 1.0, AXIS_PROBES)
     z = ranges[:, :1] + t[None, :] * (ranges[:, 1:] - ranges[:, :1])  # (B, P)
     probes = heads[:, None, :] + z[..., None] * vec[:, None, :]  # (B, P, 3)
-    a, b = heads + ranges[:, :1] * vec, heads + ranges[:, 1:] * vec  # each bone's own range
-    ab = b - a
-    ab2 = np.maximum(np.sum(ab * ab, axis=1), 1e-300)
-    head_joint, tail_joint = parents[1:], np.arange(1, n + 1)
-    reach = np.asarray(radii, np.float64) * np.linalg.norm(vec, axis=1)
+    a, ab = heads + ranges[:, :1] * vec, (ranges[:, 1:] - ranges[:, :1]) * vec  # each bone's own range
+    apart = ~shared_joints(skeleton.parents)
+    reach = np.asarray(radii, np.float64) * np.asarray(skeleton.bone_lengths, np.float64)
     touching = np.zeros((n, AXIS_PROBES), bool)
-    step = max(1, _CLEAR_CHUNK // (AXIS_PROBES * n))  # bones a block: (step, P, B, 3) at most
+    step = max(1, _CLEAR_CHUNK // (AXIS_PROBES * n))  # bones a block: (step · P, B, 3) at most
     for lo in range(0, n, step):
         rows = slice(lo, lo + step)
-        x = probes[rows][:, :, None, :]  # (r, P, 1, 3)
-        u = np.clip(((x - a) * ab).sum(-1) / ab2, 0.0, 1.0)  # (r, P, B)
-        dist = np.linalg.norm(x - (a + u[..., None] * ab), axis=-1)
-        shared = (
-            (head_joint[rows, None] == head_joint)
-            | (head_joint[rows, None] == tail_joint)
-            | (tail_joint[rows, None] == head_joint)
-            | (tail_joint[rows, None] == tail_joint)
-        )  # (r, B): bones sharing a joint, itself included
+        dist = _segment_distances(probes[rows].reshape(-1, 3), a, ab)[1].reshape(-1, AXIS_PROBES, n)
         near = dist < reach[rows, None, None] + reach[None, None, :]
-        touching[rows] = (near & ~shared[:, None, :]).any(axis=2)
+        touching[rows] = (near & apart[rows, None, :]).any(axis=2)
     return _longest_runs(~touching, z, ranges, 0.0)
 
 
@@ -201,16 +191,22 @@ def bones_partly_outside(skeleton: Skeleton, inside: Float[np.ndarray, " B"], sh
     return lines
 
 
+def _segment_distances(x: np.ndarray, a: np.ndarray, ab: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, B) the place of each point's projection on each segment a → a + ab (its share of ab, unclipped)
+    and the point's distance to the segment; x (N, 3), a and ab (B, 3).
+    """
+    u = np.einsum("vbi,bi->vb", x[:, None, :] - a[None], ab) / np.maximum(np.sum(ab * ab, 1), 1e-300)
+    closest = a[None] + np.clip(u, 0.0, 1.0)[..., None] * ab[None]
+    return u, np.linalg.norm(x[:, None, :] - closest, axis=-1)
+
+
 def _nearest_bones(x: np.ndarray, skeleton: Skeleton) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(V,) each point's nearest bone segment, the place of its projection along that bone (z / L,
     unclipped) and its distance to the segment.
     """
     p = np.asarray(skeleton.positions, np.float64)
     bones = np.asarray(skeleton.bones)
-    a, ab = p[bones[:, 0]], p[bones[:, 1]] - p[bones[:, 0]]
-    u = np.einsum("vbi,bi->vb", x[:, None, :] - a[None], ab) / np.maximum(np.sum(ab * ab, 1), 1e-300)
-    closest = a[None] + np.clip(u, 0.0, 1.0)[..., None] * ab[None]
-    dist = np.linalg.norm(x[:, None, :] - closest, axis=-1)
+    u, dist = _segment_distances(x, p[bones[:, 0]], p[bones[:, 1]] - p[bones[:, 0]])
     owner = np.argmin(dist, axis=1)
     rows = np.arange(x.shape[0])
     return owner, u[rows, owner], dist[rows, owner]
