@@ -8,7 +8,15 @@ import pytest
 
 from ncflow.config import apply_overrides, preset
 from ncflow.errors import InputError
-from ncflow.flow import SkinnedField, bone_velocities, flow_points, make_flow_field, skinning_weights, time_grid
+from ncflow.flow import (
+    SkinnedField,
+    bone_velocities,
+    flow_points,
+    integrate,
+    make_flow_field,
+    skinning_weights,
+    time_grid,
+)
 from ncflow.flow.skinning import core_gate, skin_contact, surface_skinning_weights
 from ncflow.skeleton import Skeleton, rigid_reference, sample_bones
 from ncflow.skeleton.dualquat import quat_from_rotvec
@@ -640,3 +648,31 @@ def test_exported_skin_weights_leave_the_islands_bones_out():
     assert with_islands[patch, 5].max() < 1e-6  # bone 5 -> 6 moves with joint 5
     assert normals_only[patch, 5].min() > 0.4 and normals_only[patch, 5].mean() > 0.75
     np.testing.assert_allclose(with_islands[~patch], normals_only[~patch], atol=1e-6)
+
+
+@pytest.mark.parametrize("mode", ["current", "surface"])
+def test_rematerialised_steps_give_the_stored_steps_values_and_gradients(mode):
+    """:func:`ncflow.flow.integrate` recomputes each step in the backward pass by default (``checkpoint``): on a
+    skinned field with rigid cores (the closed-form bone steps, the gated Flow-Net) the states, the slopes and
+    the gradients with respect to the network and the pose are those of the stored steps, to rounding.
+    """
+    skel = _skeleton()
+    field = SkinnedField(
+        _residual(alpha=0.3), skel, _pose(skel), 0.3, dtype=jnp.float64, weight_mode=mode, core=0.1 * skel.bone_lengths
+    )
+    rng = np.random.default_rng(3)
+    x0 = jnp.asarray(rng.normal(size=(40, 3)) + POSITIONS.mean(0))
+    normals = jnp.asarray(rng.normal(size=(40, 3)))
+
+    def loss(f, checkpoint):
+        xs, vs = integrate(f, x0, 6, checkpoint=checkpoint, normals=normals)
+        return jnp.sum(jnp.sin(xs)) + 0.1 * jnp.sum(vs**2)
+
+    value = {c: eqx.filter_jit(eqx.filter_value_and_grad(loss))(field, c) for c in (False, True)}
+    assert float(value[True][0]) == pytest.approx(float(value[False][0]), rel=1e-13)
+    grads = [jax.tree.leaves(eqx.filter(value[c][1], eqx.is_inexact_array)) for c in (False, True)]
+    assert len(grads[0]) == len(grads[1]) > 2
+    for a, b in zip(*grads, strict=True):
+        np.testing.assert_allclose(np.asarray(b), np.asarray(a), rtol=1e-10, atol=1e-12)
+    pose_grad = np.asarray(value[True][1].pose.rotations)
+    assert np.max(np.abs(pose_grad)) > 1e-3  # the pose is differentiated through the closed-form steps

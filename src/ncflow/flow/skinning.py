@@ -119,18 +119,34 @@ def _segment_distance(x: Float[Array, "N 3"], a: Float[Array, "B 3"], b: Float[A
     return _segment_projection(x, a, b)[1]
 
 
+def _projection_terms(x: Float[Array, "N 3"], a: Float[Array, "B 3"], b: Float[Array, "B 3"]):
+    """(x − a)·(b − a), |b − a|² and |x − a|², (N, B), (B,), (N, B): what the distance of x to any part of the
+    segments a–b is read from (:func:`_part_distance`). (N, B) arrays only: the point-bone products come from
+    two matrix products.
+    """
+    ab = b - a
+    ab2 = jnp.maximum(jnp.sum(ab * ab, -1), 1e-12)
+    ap_ab = _mm(x, ab.T) - jnp.sum(a * ab, -1)
+    ap2 = jnp.sum(x * x, -1)[:, None] - 2.0 * _mm(x, a.T) + jnp.sum(a * a, -1)
+    return ap_ab, ab2, ap2
+
+
+def _part_distance(terms, lo=0.0, hi=1.0):
+    """(u, d), both (N, B): where along each segment's part [lo, hi] (z / L, scalars or (B,)) its nearest point to
+    x lies (0 at a, 1 at b) and how far it is, from :func:`_projection_terms` — the nearest point of a part of a
+    line segment is the whole line's nearest point clipped to the part.
+    """
+    ap_ab, ab2, ap2 = terms
+    u = jnp.clip(ap_ab / ab2, lo, hi)
+    d2 = ap2 - 2.0 * u * ap_ab + u * u * ab2
+    return u, jnp.sqrt(jnp.maximum(d2, 0.0) + 1e-12)
+
+
 def _segment_projection(x: Float[Array, "N 3"], a: Float[Array, "B 3"], b: Float[Array, "B 3"]):
     """(u, d), both (N, B): where along each segment a–b its nearest point to x lies (0 at a, 1 at b) and
     how far it is.
     """
-    # (N, B) arrays only: the point-bone products come from two matrix products
-    ab = b - a
-    ab2 = jnp.maximum(jnp.sum(ab * ab, -1), 1e-12)
-    ap_ab = _mm(x, ab.T) - jnp.sum(a * ab, -1)  # (x − a)·(b − a)
-    ap2 = jnp.sum(x * x, -1)[:, None] - 2.0 * _mm(x, a.T) + jnp.sum(a * a, -1)  # |x − a|²
-    u = jnp.clip(ap_ab / ab2, 0.0, 1.0)
-    d2 = ap2 - 2.0 * u * ap_ab + u * u * ab2
-    return u, jnp.sqrt(jnp.maximum(d2, 0.0) + 1e-12)
+    return _part_distance(_projection_terms(x, a, b))
 
 
 def skinning_weights(
@@ -205,7 +221,8 @@ def core_gate(
     γ = min_b h(clip((d_b(x) − r_b)/(o_b − r_b), 0, 1)), d_b the distance to bone b's core segment,
     h(u) = 3u² − 2u³ (C¹: the field stays Lipschitz).
     """
-    return 1.0 - jnp.max(core_memberships(x, heads, tails, radius, outer, axial_range), axis=-1)
+    core = _core_table(heads.shape[0], radius, outer, axial_range, x.dtype)
+    return _gate(_projection_terms(x, heads, tails), core)
 
 
 def core_memberships(
@@ -219,12 +236,36 @@ def core_memberships(
     """m_b(x) = 1 − h(clip((d_b(x) − r_b)/(o_b − r_b), 0, 1)) per bone (:func:`core_gate`'s terms): 1 inside
     bone b's core, 0 beyond its outer radius (and for a bone of radius 0); γ = 1 − max_b m_b.
     """
-    rng = jnp.broadcast_to(jnp.asarray(axial_range, x.dtype), (heads.shape[0], 2))
-    lo, hi = rng[:, :1], rng[:, 1:]
-    d = _segment_distance(x, heads + lo * (tails - heads), heads + hi * (tails - heads))
-    r, o = jnp.asarray(radius, x.dtype), jnp.asarray(outer, x.dtype)
-    u = jnp.clip(jnp.where(r > 0, (d - r) / jnp.where(r > 0, o - r, 1.0), 1.0), 0.0, 1.0)
-    return 1.0 - u * u * (3.0 - 2.0 * u)
+    core = _core_table(heads.shape[0], radius, outer, axial_range, x.dtype)
+    return 1.0 - _smoothstep(_core_scaled(_projection_terms(x, heads, tails), core))
+
+
+def _core_table(n_bones, radius, outer, axial_range, dtype) -> Float[Array, "B 4"]:
+    rng = jnp.broadcast_to(jnp.asarray(axial_range, dtype), (n_bones, 2))
+    r = jnp.broadcast_to(jnp.asarray(radius, dtype), (n_bones,))
+    o = jnp.broadcast_to(jnp.asarray(outer, dtype), (n_bones,))
+    return jnp.column_stack([r, o, rng])
+
+
+def _core_scaled(terms, core: Float[Array, "B 4"]) -> Float[Array, "N B"]:
+    """s_b = (d_b − r_b)/(o_b − r_b), d_b the distance to bone b's core segment (from :func:`_projection_terms`
+    of the posed bones), 1 for a bone without a core: m_b = 1 − h(clip(s_b, 0, 1)).
+    """
+    r, o = core[:, 0], core[:, 1]
+    _, d = _part_distance(terms, core[:, 2], core[:, 3])
+    return jnp.where(r > 0, (d - r) / jnp.where(r > 0, o - r, 1.0), 1.0)
+
+
+def _smoothstep(s):
+    u = jnp.clip(s, 0.0, 1.0)
+    return u * u * (3.0 - 2.0 * u)
+
+
+def _gate(terms, core: Float[Array, "B 4"]) -> Float[Array, " N"]:
+    """γ = 1 − max_b m_b = h(clip(min_b s_b, 0, 1)) (h and the clip rise with s): the smoothstep taken on the
+    nearest core's s alone, an (N,) array, not on every bone's.
+    """
+    return _smoothstep(jnp.min(_core_scaled(terms, core), axis=-1))
 
 
 def core_weights(
@@ -239,7 +280,12 @@ def core_weights(
     """
     if core is None:
         return weights
-    m = core_memberships(x, heads, tails, core[:, 0], core[:, 1], core[:, 2:]).astype(weights.dtype)
+    return _cored(weights, _projection_terms(x, heads, tails), core)
+
+
+def _cored(weights, terms, core):
+    """:func:`core_weights` from :func:`_projection_terms` of x."""
+    m = (1.0 - _smoothstep(_core_scaled(terms, core))).astype(weights.dtype)
     c = jnp.max(m, axis=-1, keepdims=True)
     return (1.0 - c) * weights + c * jax.nn.softmax(m / CORE_SHARPNESS, axis=-1)
 
@@ -401,8 +447,10 @@ WEIGHT_MODES = ("current", "start", "surface")
 
 
 def _current_weights(x, motion, width, core):
-    heads, tails = motion[0], motion[1]
-    return core_weights(skinning_weights(x, heads, tails, width), x, heads, tails, core)
+    """:func:`core_weights` of :func:`skinning_weights`, both read from one :func:`_projection_terms` of x."""
+    terms = _projection_terms(x, motion[0], motion[1])
+    w = jax.nn.softmax(-_part_distance(terms)[1] / width, axis=-1)
+    return w if core is None else _cored(w, terms, core)
 
 
 def _affine_blend(x, w, mats, offsets):
@@ -472,4 +520,4 @@ def _gated(residual, x, motion, core):
     if core is None:
         return residual
     heads, tails, *_ = motion
-    return residual * core_gate(x, heads, tails, core[:, 0], core[:, 1], core[:, 2:])[:, None]
+    return residual * _gate(_projection_terms(x, heads, tails), core)[:, None]
