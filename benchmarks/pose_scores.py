@@ -28,7 +28,7 @@ def main() -> None:
     from ott.tools.sinkhorn_divergence import sinkdiv
 
     from ncflow.config import preset, validate_config
-    from ncflow.flow.skinning import skinning_weights
+    from ncflow.flow.bone_weights import skinning_weights
     from ncflow.matcher.place import place
     from ncflow.matcher.placement import surface_diracs
     from ncflow.matcher.pose_scorer import skinned

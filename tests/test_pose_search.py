@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from ncflow.flow.skinning import skinning_weights
+from ncflow.flow.bone_weights import skinning_weights
 from ncflow.geometry.normalize import fit_normalization
 from ncflow.matcher.pose_hypotheses import (
     chain_grid,

@@ -17,7 +17,7 @@ from ncflow.flow import (
     skinning_weights,
     time_grid,
 )
-from ncflow.flow.skinning import core_gate, skin_contact, surface_skinning_weights
+from ncflow.flow.bone_weights import core_gate, skin_contact, surface_skinning_weights
 from ncflow.skeleton import Skeleton, rigid_reference, sample_bones
 from ncflow.skeleton.dualquat import quat_from_rotvec
 from ncflow.skeleton.kinematics import Pose, bone_motions, move_bone_points, rest_pose
@@ -542,7 +542,7 @@ def test_core_weights_are_the_bones_own_inside_its_core_and_a_partition_of_unity
     """Inside bone b's core the weights are e_b, though at the joint the other bones' core ramps reach
     the point (to 1e-4 where a ramp is at 0.8 of its height, e^{-0.2/κ}; 1e-11 at 0.5); beyond every outer
     radius they are the plain weights; rows sum to 1 and move continuously with x."""
-    from ncflow.flow.skinning import core_memberships, core_weights
+    from ncflow.flow.bone_weights import core_memberships, core_weights
 
     skel = _skeleton()
     heads = jnp.asarray(POSITIONS[skel.bones[:, 0]])

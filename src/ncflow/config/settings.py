@@ -110,7 +110,7 @@ class FlowConfig:
     ``rigid_core`` (with ``skinning``; 0: off) fades the Flow-Net out around every bone, so that the
     bone samples (within ``sampling.bone_radius`` of the bone's axis) move with the skeleton alone and
     the bones stay rigid by construction: the Flow-Net's velocity is scaled by a smoothstep from 0 at
-    the samples' radius to 1 at (1 + ``rigid_core``) radii (:func:`ncflow.flow.skinning.core_gate`);
+    the samples' radius to 1 at (1 + ``rigid_core``) radii (:func:`ncflow.flow.bone_weights.core_gate`);
     ``leash`` (with ``skinning``; 0: off) weighs a term that holds the Flow-Net itself, before the cores
     fade it, near zero at the bone samples (:func:`ncflow.matcher.objective.leash_term`), so that the
     skin next to a bone moves with the bone's pose rather than with a Flow-Net turning against it (off by

@@ -1,6 +1,6 @@
 """Skin islands: the bones a surface point may not take because its skin is cut off from their limb.
 
-The weights that see the skin (:func:`ncflow.flow.skinning.surface_skinning_weights`) leave out a bone in
+The weights that see the skin (:func:`ncflow.flow.bone_weights.surface_skinning_weights`) leave out a bone in
 front of a point's skin. A captured fist's fingertip sunk into the palm has its bone *behind* the palm's
 skin, nearer than the palm's own bone, where that test cannot tell; along the surface, though, the palm's
 skin is cut off from the fingertip's limb. :func:`skin_islands` finds such pieces on a mesh and
@@ -33,7 +33,7 @@ def skin_islands(
     adjacent: Bool[np.ndarray, "B B"],
     max_rounds: int = 8,
 ) -> Bool[np.ndarray, "V B"]:
-    """Bones each vertex may not take in :func:`~ncflow.flow.skinning.surface_skinning_weights`: those
+    """Bones each vertex may not take in :func:`~ncflow.flow.bone_weights.surface_skinning_weights`: those
     whose skin would be an island, cut off from the body along the surface.
 
     A vertex's bone is the nearest one not in front of its skin. Kept are the mesh edges whose two

@@ -38,7 +38,7 @@ import scipy.sparse as sp
 from jaxtyping import Bool, Float, Int
 from scipy.spatial import cKDTree
 
-from ncflow.flow.skinning import skinning_weights
+from ncflow.flow.bone_weights import skinning_weights
 from ncflow.geometry.closest import closest_points_on_surface
 from ncflow.geometry.mesh import face_areas, outward_vertex_normals
 from ncflow.geometry.topology import Topology

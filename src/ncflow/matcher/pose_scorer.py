@@ -19,7 +19,8 @@ import numpy as np
 import optax
 from jaxtyping import Float, Int
 
-from ncflow.flow.skinning import skinning_weights, surface_skinning_weights, swing_only
+from ncflow.flow.bone_weights import skinning_weights, surface_skinning_weights
+from ncflow.flow.skinning import swing_only
 from ncflow.matcher.placement import surface_diracs
 from ncflow.measures.partial import VIEW_STRENGTH, facing_weights, occlusion_cover, view_direction, view_strength
 from ncflow.measures.varifold import Varifold, varifold_inner
@@ -203,7 +204,7 @@ class PoseScorer:
         refine_steps: gradient steps per refinement scale.
         seed: seed of the face sampling.
         skin_aware: bone weights that leave out the bones in front of a sample's skin
-            (:func:`~ncflow.flow.skinning.surface_skinning_weights`) instead of the field's.
+            (:func:`~ncflow.flow.bone_weights.surface_skinning_weights`) instead of the field's.
     """
 
     def __init__(

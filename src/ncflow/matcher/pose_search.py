@@ -284,7 +284,7 @@ def search_poses(
             or limb with the others held (0.1 was measured); None (the default): none. Not adopted: it
             fixes procedural hands' fingers in the search, but see docs/tuning.md.
         skin_aware: the source samples' bone weights leave out the bones in front of their skin
-            (:func:`~ncflow.flow.skinning.surface_skinning_weights`), as the training's do with
+            (:func:`~ncflow.flow.bone_weights.surface_skinning_weights`), as the training's do with
             ``flow.skinning_weights`` "surface" (:func:`ncflow.matcher.place.place` passes it then).
         chain_sweeps: passes of the chain search over the chains.
         chain_near: the chain search runs on the placements whose score is within this share of the best.

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Float
 
-from ncflow.flow.skinning import skin_contact
+from ncflow.flow.bone_weights import skin_contact
 from ncflow.geometry.cloud import PointCloud
 from ncflow.geometry.decimate import Decimation, decimate
 from ncflow.geometry.laplacian import lumped_mass
@@ -337,7 +337,7 @@ def skinning_weight_mode(
     * "surface" when the source's limbs touch: more than :data:`AUTO_CONTACT` of its area has its
       nearest bone of ``skeleton`` (in the source's coordinates) in front of its skin, a bone
       :data:`CONTACT_HOPS` or more joints away from the one under it (a fist's palm under its
-      fingertips; :func:`ncflow.flow.skinning.skin_contact`, on the bones' parts inside the source,
+      fingertips; :func:`ncflow.flow.bone_weights.skin_contact`, on the bones' parts inside the source,
       ``ranges`` of :func:`~ncflow.skeleton.checks.inside_axial_ranges`, found when not given). The
       plain weights would give that skin to the touching limb.
     * else "start" when the target passes through itself (:func:`ncflow.geometry.overlap.self_overlap`)

@@ -42,7 +42,7 @@ from jaxtyping import Bool, Float, Int
 from scipy.sparse.linalg import splu
 
 from ncflow.errors import InputError
-from ncflow.flow.skinning import skinning_weights, surface_skinning_weights
+from ncflow.flow.bone_weights import skinning_weights, surface_skinning_weights
 from ncflow.geometry.barycentric import surface_points
 from ncflow.geometry.laplacian import cotangent_laplacian, lumped_mass
 from ncflow.geometry.mesh import orientation, vertex_normals
@@ -277,13 +277,14 @@ def skeleton_weights(
     width: float = DEFAULT_SKINNING_WIDTH,
     normals: Float[np.ndarray, "V C"] | None = None,
 ) -> Float[np.ndarray, "V J"]:
-    """Per-joint skin weights of the skeleton-driven flow field at rest (:func:`ncflow.flow.skinning.skinning_weights`).
+    """Per-joint skin weights of the skeleton-driven flow field at rest
+    (:func:`ncflow.flow.bone_weights.skinning_weights`).
 
     Bone weights ``softmax_b(−d_b(x)/τ)`` (d_b the distance to bone b's segment, τ = ``width`` ×
     the median bone length), each bone's weight given to its parent joint (module docstring). With the
     vertices' outward ``normals``, the bones in front of the skin (and the islands' bones,
     :func:`ncflow.flow.islands.skin_islands`) are left out, as the field's weights of a match that saw
-    the skin (``"surface"``, :func:`ncflow.flow.skinning.surface_skinning_weights`).
+    the skin (``"surface"``, :func:`ncflow.flow.bone_weights.surface_skinning_weights`).
 
     Args:
         vertices: (V, 3) the rest source.
