@@ -29,10 +29,6 @@ def _mm(a: Array, b: Array) -> Array:
     return jnp.matmul(a, b, precision=_HIGHEST)
 
 
-def _segment_distance(x: Float[Array, "N 3"], a: Float[Array, "B 3"], b: Float[Array, "B 3"]) -> Float[Array, "N B"]:
-    return _segment_projection(x, a, b)[1]
-
-
 def _projection_terms(x: Float[Array, "N 3"], a: Float[Array, "B 3"], b: Float[Array, "B 3"]):
     """(x − a)·(b − a), |b − a|² and |x − a|², (N, B), (B,), (N, B): what the distance of x to any part of the
     segments a–b is read from (:func:`_part_distance`). (N, B) arrays only: the point-bone products come from
@@ -67,7 +63,12 @@ def skinning_weights(
     x: Float[Array, "N 3"], heads: Float[Array, "B 3"], tails: Float[Array, "B 3"], width: float | Float[Array, ""]
 ) -> Float[Array, "N B"]:
     """w_b(x) = softmax_b(−d_b(x)/width), d_b the distance of x to the segment heads[b]–tails[b]."""
-    return jax.nn.softmax(-_segment_distance(x, heads, tails) / width, axis=-1)
+    return _plain(_projection_terms(x, heads, tails), width)
+
+
+def _plain(terms, width) -> Float[Array, "N B"]:
+    """:func:`skinning_weights` from :func:`_projection_terms` of x."""
+    return jax.nn.softmax(-_part_distance(terms)[1] / width, axis=-1)
 
 
 def surface_skinning_weights(

@@ -74,10 +74,11 @@ from jaxtyping import Array, ArrayLike, Float
 
 from ncflow.flow.bone_weights import (
     _HIGHEST,
+    _core_table,
     _cored,
     _gate,
     _mm,
-    _part_distance,
+    _plain,
     _projection_terms,
     core_weights,
     skinning_weights,
@@ -181,9 +182,9 @@ class SkinnedField(eqx.Module):
         if core is None:
             self.core = None
         else:
-            ranges = np.broadcast_to(DEFAULT_AXIAL_RANGE if core_ranges is None else core_ranges, (skeleton.n_bones, 2))
+            ranges = DEFAULT_AXIAL_RANGE if core_ranges is None else core_ranges
             outer = 2.0 * np.asarray(core) if core_outer is None else np.asarray(core_outer)
-            self.core = jnp.asarray(np.column_stack([np.asarray(core), outer, ranges]), dtype)  # radius, outer, lo, hi
+            self.core = _core_table(skeleton.n_bones, core, outer, ranges, dtype)  # radius, outer, lo, hi
         self.interp = interp
         self.weight_mode = weight_mode
 
@@ -276,7 +277,7 @@ WEIGHT_MODES = ("current", "start", "surface")
 def _current_weights(x, motion, width, core):
     """:func:`~ncflow.flow.bone_weights.core_weights` of the plain weights, both from one projection of x."""
     terms = _projection_terms(x, motion[0], motion[1])
-    w = jax.nn.softmax(-_part_distance(terms)[1] / width, axis=-1)
+    w = _plain(terms, width)
     return w if core is None else _cored(w, terms, core)
 
 
