@@ -207,3 +207,17 @@ def _cored(weights, terms, core):
 
 CORE_SHARPNESS = 0.02
 """κ of :func:`core_weights`: a neighbouring core's ramp at 0.7 of its height leaves it a weight of e^{−15}."""
+
+CORE_CLEAR = 0.7
+"""The membership m below which a neighbouring core leaves a point to its own core's bone (a share e^{−15}
+at :data:`CORE_SHARPNESS`): :func:`core_clearance`."""
+
+
+def core_clearance(ramp: float) -> float:
+    """How far from a bone's core part, in core radii c, its membership m falls to :data:`CORE_CLEAR`: the
+    capsule other bones' samples must stay out of to keep their own bone's motion alone. With the ramp
+    to (1 + ``ramp``) c (:func:`ncflow.matcher.objective.bone_cores`), m = 1 − h(s), s = (d − c)/(ramp c),
+    so d = c (1 + ramp · h⁻¹(1 − CORE_CLEAR)), h⁻¹(y) = ½ − sin(arcsin(1 − 2y)/3) (the smoothstep's inverse).
+    """
+    s = 0.5 - np.sin(np.arcsin(1.0 - 2.0 * (1.0 - CORE_CLEAR)) / 3.0)
+    return float(1.0 + ramp * s)

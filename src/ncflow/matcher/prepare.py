@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Float
 
-from ncflow.flow.bone_weights import skin_contact
+from ncflow.flow.bone_weights import core_clearance, skin_contact
 from ncflow.geometry.cloud import PointCloud
 from ncflow.geometry.decimate import Decimation, decimate
 from ncflow.geometry.laplacian import lumped_mass
@@ -36,7 +36,13 @@ from ncflow.matcher.inputs import (
     load_inputs,
 )
 from ncflow.skeleton import Skeleton
-from ncflow.skeleton.checks import bones_partly_outside, clear_axial_ranges, flesh_radius, inside_axial_ranges
+from ncflow.skeleton.checks import (
+    bones_partly_outside,
+    clear_axial_ranges,
+    clear_joint_ranges,
+    flesh_radius,
+    inside_axial_ranges,
+)
 from ncflow.skeleton.suggest import BASES, suggest_skeletons
 from ncflow.tissue import centroids_digest, load_tissue_file, tissue_centroids
 
@@ -263,6 +269,8 @@ def prepare(source, target, skeleton, config, message=lambda text: None) -> Setu
         radii = bone_radii(config, skel_n, flesh_radius(skel_n, work.vertices))
         if config.flow.skinning and config.flow.rigid_core > 0:  # samples and cores where no other bone's are
             ranges = clear_axial_ranges(skel_n, ranges, radii)
+            if config.flow.clear_joints:
+                ranges = clear_joint_ranges(skel_n, ranges, radii, core_clearance(config.flow.rigid_core), inside > 0)
         warnings.extend(bones_partly_outside(skel, inside))
         if weights["mode"] == "surface" and config.flow.skinning_weights == "auto":
             shown(

@@ -11,7 +11,7 @@ prints these warnings, and the matcher refuses a skeleton whose joints lie far o
 from __future__ import annotations
 
 import numpy as np
-from jaxtyping import Float, Int
+from jaxtyping import Bool, Float, Int
 
 from ncflow.geometry.skeleton import Skeleton, shared_joints
 from ncflow.geometry.topology import mesh_topology
@@ -171,6 +171,90 @@ def clear_axial_ranges(
         near = dist < reach[rows, None, None] + reach[None, None, :]
         touching[rows] = (near & apart[rows, None, :]).any(axis=2)
     return _longest_runs(~touching, z, ranges, 0.0)
+
+
+RIM_POINTS = 12
+"""Points around each probe's disc (at its radius and at half of it) where :func:`clear_joint_ranges` measures."""
+
+
+def clear_joint_ranges(
+    skeleton: Skeleton,
+    ranges: Float[np.ndarray, "B 2"],
+    radii: Float[np.ndarray, " B"],
+    clearance: float,
+    cored: Bool[np.ndarray, " B"] | None = None,
+) -> Float[np.ndarray, "B 2"]:
+    """Per bone and its parent bone (they meet at a joint and move apart when it bends), the parts of
+    their ``ranges`` (z / L) whose sample cylinders (radius ρ_b L_b, ``radii`` ρ) keep clear of the other's
+    rigid core: the capsule of radius ``clearance`` · ρ_o L_o around the other bone's range (the core and
+    the part of its ramp where a point would still share the other bone's motion;
+    :func:`ncflow.flow.bone_weights.core_clearance`). At a tight bend — a fist's knuckle, the long bone
+    of a palm whose core's end cap reaches over the finger's first phalanx — a point in both cores is
+    split between two motions and cannot stay rigid with either; neither bone is sampled (nor cored)
+    there.
+
+    Where the two conflict (a point of either cylinder, its axis, rim and half-rim at
+    :data:`AXIS_PROBES` heights with :data:`RIM_POINTS` around, inside the other's capsule), the parent's
+    range is cut back from the joint's end or the child's from its start, on that bone's probe heights,
+    whichever clears with the smaller share of its range lost (the parent on a tie); a pair no single
+    cut clears is left as it was. Bones of one joint's children move alike and are not compared; bones
+    that share no joint are :func:`clear_axial_ranges`' case. ``cored`` (B,) bool: the bones that have a
+    core (default all); a bone without one only yields. Parents are visited before their children (the
+    skeleton's order), so a bone cut at its start by its parent may still be cut at its end by its own
+    children.
+    """
+    out = np.array(ranges, np.float64)
+    par = np.asarray(skeleton.parents, np.int64)
+    pos = np.asarray(skeleton.positions, np.float64)
+    heads, vec = pos[par[1:]], pos[1:] - pos[par[1:]]
+    length = np.linalg.norm(vec, axis=1)
+    reach = np.asarray(radii, np.float64) * length
+    core = reach * clearance * (np.ones(len(reach), bool) if cored is None else np.asarray(cored, bool))
+    disc = _disc_offsets(vec, reach)  # (B, D, 3)
+
+    def conflict(o: int, b: int, ro: np.ndarray, rb: np.ndarray) -> bool:
+        for x, y, rx, ry in ((o, b, ro, rb), (b, o, rb, ro)):
+            if core[y] <= 0:
+                continue
+            z = np.linspace(rx[0], rx[1], AXIS_PROBES)
+            pts = (heads[x] + z[:, None, None] * vec[x] + disc[x][None]).reshape(-1, 3)
+            a, ab = heads[y] + ry[0] * vec[y], (ry[1] - ry[0]) * vec[y]
+            if _segment_distances(pts, a[None], ab[None])[1].min() < core[y]:
+                return True
+        return False
+
+    for j in range(1, par.shape[0]):  # parents first (the skeleton's order)
+        b, o = j - 1, int(par[j]) - 1
+        if o < 0 or not conflict(o, b, out[o], out[b]):
+            continue
+        cuts = []
+        for who, which in ((o, 1), (b, 0)):
+            z = np.linspace(out[who, 0], out[who, 1], AXIS_PROBES)[1:-1]
+            for end in z[::-1] if which == 1 else z:
+                trial = out[who].copy()
+                trial[which] = end
+                ro, rb = (trial, out[b]) if who == o else (out[o], trial)
+                if not conflict(o, b, ro, rb):
+                    lost = abs(end - out[who, which]) / (out[who, 1] - out[who, 0])
+                    cuts.append((lost, who != o, who, which, end))
+                    break
+        if cuts:
+            _, _, who, which, end = min(cuts)
+            out[who, which] = end
+    return out
+
+
+def _disc_offsets(vec: np.ndarray, reach: np.ndarray) -> np.ndarray:
+    """(B, 1 + 2·RIM_POINTS, 3) offsets from a bone's axis to its disc's centre, rim and half-rim."""
+    axis = vec / np.maximum(np.linalg.norm(vec, axis=1, keepdims=True), 1e-300)
+    helper = np.where(np.abs(axis[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    u = np.cross(axis, helper)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    v = np.cross(axis, u)
+    ang = np.linspace(0.0, 2.0 * np.pi, RIM_POINTS, endpoint=False)
+    ring = np.cos(ang)[None, :, None] * u[:, None] + np.sin(ang)[None, :, None] * v[:, None]  # (B, K, 3)
+    r = reach[:, None, None]
+    return np.concatenate([np.zeros_like(ring[:, :1]), r * ring, 0.5 * r * ring], axis=1)
 
 
 def bones_partly_outside(skeleton: Skeleton, inside: Float[np.ndarray, " B"], share: float = 0.5) -> list[str]:
