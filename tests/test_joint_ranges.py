@@ -97,6 +97,20 @@ def test_equal_bones_bent_past_a_right_angle_cut_the_parent_and_a_straight_chain
         np.testing.assert_array_equal(clear_joint_ranges(straight, ranges, np.full(2, 0.1), CLEARANCE), ranges)
 
 
+@pytest.mark.parametrize(("turn", "lo"), [(110.0, 0.15), (120.0, 0.1), (130.0, 0.1), (130.0, 0.05)])
+def test_a_tie_in_probe_steps_is_decided_by_steps_not_by_rounding(turn, lo):
+    """Equal bones with the same range, bent symmetrically: either cut clears with the same number of probe
+    steps and the same length, so the parent yields at every bend (comparing shares of the range as floats
+    gave the child at 110° and 130°), by exactly whole probe steps, and the two then keep clear."""
+    skel = _chain([1.0, 1.0], [turn])
+    ranges = np.tile([lo, 1.0 - lo], (2, 1))
+    got = clear_joint_ranges(skel, ranges, np.full(2, 0.1), CLEARANCE)
+    np.testing.assert_array_equal(got[1], ranges[1])
+    steps = (ranges[0, 1] - got[0, 1]) / ((ranges[0, 1] - ranges[0, 0]) / (AXIS_PROBES - 1))
+    assert steps >= 1 and steps == pytest.approx(round(steps), abs=1e-9)
+    assert _gap(skel, got, 0.1, 0, 1) >= CLEARANCE * 0.97
+
+
 def test_joint_ranges_are_the_same_at_any_scale_and_placement_and_siblings_are_not_compared():
     ranges, radii = np.tile([0.1, 0.9], (3, 1)), np.full(3, 0.1)
     got = clear_joint_ranges(_chain([1.92, 0.5, 0.45], [104.0, 80.0]), ranges, radii, CLEARANCE)

@@ -16,7 +16,7 @@ from jaxtyping import Bool, Float, Int
 from ncflow.geometry.skeleton import Skeleton, shared_joints
 from ncflow.geometry.topology import mesh_topology
 from ncflow.geometry.winding import winding_numbers
-from ncflow.skeleton.samples import DEFAULT_AXIAL_RANGE
+from ncflow.skeleton.samples import DEFAULT_AXIAL_RANGE, bone_axes
 
 
 def _surface_distance(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
@@ -196,7 +196,8 @@ def clear_joint_ranges(
     Where the two conflict (a point of either cylinder, its axis, rim and half-rim at
     :data:`AXIS_PROBES` heights with :data:`RIM_POINTS` around, inside the other's capsule), the parent's
     range is cut back from the joint's end or the child's from its start, on that bone's probe heights,
-    whichever clears with the smaller share of its range lost (the parent on a tie); a pair no single
+    whichever clears with fewer of its :data:`AXIS_PROBES` steps lost (on a tie, the one that loses less length,
+    then the parent); a pair no single
     cut clears is left as it was. Bones of one joint's children move alike and are not compared; bones
     that share no joint are :func:`clear_axial_ranges`' case. ``cored`` (B,) bool: the bones that have a
     core (default all); a bone without one only yields. Parents are visited before their children (the
@@ -205,12 +206,11 @@ def clear_joint_ranges(
     """
     out = np.array(ranges, np.float64)
     par = np.asarray(skeleton.parents, np.int64)
-    pos = np.asarray(skeleton.positions, np.float64)
-    heads, vec = pos[par[1:]], pos[1:] - pos[par[1:]]
-    length = np.linalg.norm(vec, axis=1)
+    heads, length, e1, e2, e3 = (np.asarray(x, np.float64) for x in bone_axes(skeleton))
+    vec = e1 * length[:, None]
     reach = np.asarray(radii, np.float64) * length
     core = reach * clearance * (np.ones(len(reach), bool) if cored is None else np.asarray(cored, bool))
-    disc = _disc_offsets(vec, reach)  # (B, D, 3)
+    disc = _disc_offsets(e2, e3, reach)  # (B, D, 3)
 
     def conflict(o: int, b: int, ro: np.ndarray, rb: np.ndarray) -> bool:
         for x, y, rx, ry in ((o, b, ro, rb), (b, o, rb, ro)):
@@ -230,29 +230,26 @@ def clear_joint_ranges(
         cuts = []
         for who, which in ((o, 1), (b, 0)):
             z = np.linspace(out[who, 0], out[who, 1], AXIS_PROBES)[1:-1]
-            for end in z[::-1] if which == 1 else z:
+            for steps, end in enumerate(z[::-1] if which == 1 else z, start=1):
                 trial = out[who].copy()
                 trial[which] = end
                 ro, rb = (trial, out[b]) if who == o else (out[o], trial)
                 if not conflict(o, b, ro, rb):
-                    lost = abs(end - out[who, which]) / (out[who, 1] - out[who, 0])
-                    cuts.append((lost, who != o, who, which, end))
+                    length_lost = round(steps * (out[who, 1] - out[who, 0]) * length[who] / (length[o] + length[b]), 9)
+                    cuts.append((steps, length_lost, who != o, who, which, end))
                     break
         if cuts:
-            _, _, who, which, end = min(cuts)
+            *_, who, which, end = min(cuts)
             out[who, which] = end
     return out
 
 
-def _disc_offsets(vec: np.ndarray, reach: np.ndarray) -> np.ndarray:
-    """(B, 1 + 2·RIM_POINTS, 3) offsets from a bone's axis to its disc's centre, rim and half-rim."""
-    axis = vec / np.maximum(np.linalg.norm(vec, axis=1, keepdims=True), 1e-300)
-    helper = np.where(np.abs(axis[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-    u = np.cross(axis, helper)
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    v = np.cross(axis, u)
+def _disc_offsets(e2: np.ndarray, e3: np.ndarray, reach: np.ndarray) -> np.ndarray:
+    """(B, 1 + 2·RIM_POINTS, 3) offsets from a bone's axis to its disc's centre, rim and half-rim, in the
+    bone's cross-section frame e₂, e₃ (B, 3) from :func:`ncflow.skeleton.samples.bone_axes`.
+    """
     ang = np.linspace(0.0, 2.0 * np.pi, RIM_POINTS, endpoint=False)
-    ring = np.cos(ang)[None, :, None] * u[:, None] + np.sin(ang)[None, :, None] * v[:, None]  # (B, K, 3)
+    ring = np.cos(ang)[None, :, None] * e2[:, None] + np.sin(ang)[None, :, None] * e3[:, None]  # (B, K, 3)
     r = reach[:, None, None]
     return np.concatenate([np.zeros_like(ring[:, :1]), r * ring, 0.5 * r * ring], axis=1)
 
