@@ -140,9 +140,10 @@ def test_the_clearance_is_where_a_cores_membership_falls_to_core_clear():
         assert float(m[0, 0]) == pytest.approx(CORE_CLEAR, abs=1e-5)
 
 
-def test_prepare_clears_the_joints_of_a_bent_source_only_when_asked():
-    """A capsule bent 110° in its middle with a two-bone skeleton along it: with ``flow.clear_joints`` the
-    matcher's bone ranges are clear_joint_ranges' of the ranges it has otherwise, and they differ."""
+def test_prepare_clears_the_joints_of_a_bent_source_unless_turned_off():
+    """A capsule bent 110° in its middle with a two-bone skeleton along it: by default (``flow.clear_joints``)
+    the matcher's bone ranges are clear_joint_ranges' of the ranges it has with the setting off, and they
+    differ."""
     v, f = capsule(radius=0.4, length=3.0, n_around=24, n_along=48)
     v = bend(v, 110.0)
     a = np.deg2rad(110.0)
@@ -150,9 +151,10 @@ def test_prepare_clears_the_joints_of_a_bent_source_only_when_asked():
     skel = Skeleton.from_arrays(pos, np.array([-1, 0, 1]))
     cfg = preset("fast")
     cfg = dataclasses.replace(cfg, weights=dataclasses.replace(cfg.weights, tissue=0.0))
-    off = prepare(Mesh(v, f), Mesh(v, f), skel, validate_config(cfg))
-    on_cfg = dataclasses.replace(cfg, flow=dataclasses.replace(cfg.flow, clear_joints=True))
-    on = prepare(Mesh(v, f), Mesh(v, f), skel, validate_config(on_cfg))
+    assert cfg.flow.clear_joints
+    on = prepare(Mesh(v, f), Mesh(v, f), skel, validate_config(cfg))
+    off_cfg = dataclasses.replace(cfg, flow=dataclasses.replace(cfg.flow, clear_joints=False))
+    off = prepare(Mesh(v, f), Mesh(v, f), skel, validate_config(off_cfg))
     want = clear_joint_ranges(off.skeleton_normalized, off.bone_ranges, off.bone_radii, CLEARANCE, off.bone_inside > 0)
     np.testing.assert_allclose(on.bone_ranges, want)
     assert not np.allclose(on.bone_ranges, off.bone_ranges)

@@ -113,7 +113,8 @@ class FlowConfig:
     the samples' radius to 1 at (1 + ``rigid_core``) radii (:func:`ncflow.flow.bone_weights.core_gate`);
     ``clear_joints`` (with ``rigid_core``) keeps each bone's samples and core out of its parent's and
     children's cores where a bend brings them together (:func:`ncflow.skeleton.checks.clear_joint_ranges`;
-    off by default until measured on every benchmark: docs/tuning.md, "Cores that meet at a bend");
+    docs/tuning.md, "Cores that meet at a bend": a fist's finger bone at 1.62 ε held to rounding, at the
+    same geodesic AUC over the benchmarks' changed pairs);
     ``leash`` (with ``skinning``; 0: off) weighs a term that holds the Flow-Net itself, before the cores
     fade it, near zero at the bone samples (:func:`ncflow.matcher.objective.leash_term`), so that the
     skin next to a bone moves with the bone's pose rather than with a Flow-Net turning against it (off by
@@ -138,7 +139,7 @@ class FlowConfig:
     pose_lr_scale: float = setting(5.0, lo=0, message=NON_NEGATIVE)
     hold_contact_pose: bool = setting(True)
     rigid_core: float = setting(1.0, lo=0, message=NON_NEGATIVE)
-    clear_joints: bool = setting(False)
+    clear_joints: bool = setting(True)
     leash: float = setting(0.0, lo=0, message=NON_NEGATIVE)
     tissue_anchor: str = setting("auto", choices=("auto", "on", "off"), message="{name} must be 'auto', 'on' or 'off'")
     n_times: int = setting(10, lo=2, hi=100_000, message="{name} must be at least 2")
