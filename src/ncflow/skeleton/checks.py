@@ -196,13 +196,12 @@ def clear_joint_ranges(
     Where the two conflict (a point of either cylinder, its axis, rim and half-rim at
     :data:`AXIS_PROBES` heights with :data:`RIM_POINTS` around, inside the other's capsule), the parent's
     range is cut back from the joint's end or the child's from its start, on that bone's probe heights,
-    whichever clears with fewer of its :data:`AXIS_PROBES` steps lost (on a tie, the one that loses less length,
-    then the parent); a pair no single
-    cut clears is left as it was. Bones of one joint's children move alike and are not compared; bones
-    that share no joint are :func:`clear_axial_ranges`' case. ``cored`` (B,) bool: the bones that have a
-    core (default all); a bone without one only yields. Parents are visited before their children (the
-    skeleton's order), so a bone cut at its start by its parent may still be cut at its end by its own
-    children.
+    whichever clears with fewer of its :data:`AXIS_PROBES` steps lost (on a tie, the one that loses less
+    length, then the parent); a pair no single cut clears is left as it was. Bones of one joint's children
+    move alike and are not compared; bones that share no joint are :func:`clear_axial_ranges`' case.
+    ``cored`` (B,) bool: the bones that have a core (default all); a bone without one only yields. Parents
+    are visited before their children (the skeleton's order), so a bone cut at its start by its parent may
+    still be cut at its end by its own children.
     """
     out = np.array(ranges, np.float64)
     par = np.asarray(skeleton.parents, np.int64)
