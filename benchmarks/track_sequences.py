@@ -2,6 +2,7 @@
 every frame.
 
     python benchmarks/track_sequences.py OUT [--only NAME ...] [--frames N] [--warm-steps S] [--seed K] [--vs-match]
+        [--set KEY=VALUE ...]
 
 Sequences (every frame re-triangulated on its own grid, exact ground truth per frame):
 
@@ -37,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ncflow.config import apply_overrides, preset
 from ncflow.evaluate.metrics import auc, geodesic_errors
 from ncflow.io.files import read_npz_arrays
 from ncflow.io.mano import load_mano
@@ -125,8 +127,9 @@ def score(name: str, data: Path, run: Path) -> dict:
     }
 
 
-def match_wall(data: Path, files: dict, out: Path) -> float:
-    """Wall seconds of ``ncflow match`` of the sequence's last frame, run as a new process."""
+def match_wall(data: Path, files: dict, out: Path, settings: list[str]) -> float:
+    """Wall seconds of ``ncflow match`` of the sequence's last frame, run as a new process (with the track's
+    ``--set`` settings)."""
     cmd = [
         sys.executable,
         "-m",
@@ -136,6 +139,7 @@ def match_wall(data: Path, files: dict, out: Path) -> float:
         str(data / files["frames"][-1]["mesh"]),
     ]
     cmd += ["--skeleton", str(data / files["skeleton"]), "--out", str(out), "--overwrite", "--quiet"]
+    cmd += [arg for kv in settings for arg in ("--set", kv)]
     t0 = time.perf_counter()
     subprocess.run(cmd, check=True)
     return time.perf_counter() - t0
@@ -149,7 +153,9 @@ def main(argv=None) -> int:
     p.add_argument("--warm-steps", type=int, default=None)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--vs-match", action="store_true", help="also time a full `ncflow match` of the last frame")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a setting, as `ncflow match --set`")
     args = p.parse_args(argv)
+    config = apply_overrides(preset("fast"), args.set)
     out = Path(args.out)
     rows = []
     for name in args.only:
@@ -164,6 +170,7 @@ def main(argv=None) -> int:
             [data / f["mesh"] for f in files["frames"]],
             data / files["skeleton"],
             run,
+            config,
             quiet=True,
             **options,
         )
@@ -172,7 +179,7 @@ def main(argv=None) -> int:
         row["wall_seconds"] = time.perf_counter() - t0
         row["track_wall_seconds"] = track_wall
         if args.vs_match:
-            row["match_wall_seconds"] = match_wall(data, files, out / "match" / name)
+            row["match_wall_seconds"] = match_wall(data, files, out / "match" / name, args.set)
             row["speedup_vs_match"] = row["n_frames"] * row["match_wall_seconds"] / track_wall
         rows.append(row)
         print(
