@@ -63,6 +63,9 @@ def run(root: Path, out: Path, names: list[str]) -> None:
             "max": float(err.max()),
             "fingers": fingers,
             "score": placed.pose_search.score,
+            "rotations": np.asarray(pose.rotations, float).round(6).tolist(),
+            "translation": np.asarray(pose.translation, float).round(6).tolist(),
+            "truth": truth.round(6).tolist(),
             "seconds": time.perf_counter() - t0,
         }
         shown = {k: round(v, 3) for k, v in fingers.items() if v is not None}

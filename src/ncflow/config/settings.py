@@ -307,6 +307,9 @@ class Config:
     (``auto`` | ``on`` | ``off``): after that search, re-pose each finger or limb with the others held
     at a finer kernel scale (:func:`ncflow.matcher.pose_search.search_chains`); ``auto``: where the
     source's limbs touch (bone weights ``"surface"``, whose first phase holds the searched pose).
+    ``pose_exchanges``: after that search, try the found pose's fingers (three or more alike limbs off one
+    joint) exchanged in pairs at the fine kernel scale, the one-to-one assignment of fingers to the
+    target's (:mod:`ncflow.matcher.pose_exchange`); off by default until measured on every benchmark pair.
     ``skeleton_bases`` (``auto`` | ``ring`` | ``inside`` | ``choose``): without a given skeleton, where the
     suggested skeleton puts a limb's base joint (:func:`ncflow.skeleton.suggest.suggest_skeleton`): ``ring``
     where the limb leaves the body, ``inside`` a limb's radius further in for limbs in pairs, ``auto`` (the
@@ -357,6 +360,7 @@ class Config:
     placement: str = setting("auto", choices=("auto", "none"), message="{name} must be 'auto' or 'none'")
     pose_search: bool = setting(True)
     pose_chains: str = setting("off", choices=("auto", "on", "off"), message="{name} must be 'auto', 'on' or 'off'")
+    pose_exchanges: bool = setting(False)
     skeleton_bases: str = setting(
         "auto",
         choices=("ring", "inside", "auto", "choose"),

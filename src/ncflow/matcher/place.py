@@ -141,6 +141,7 @@ def place_and_pose(
             seed=seed,
             skin_aware=skin_aware,
             chain_sigma=chain_sigma(config, skin_aware),
+            exchange_fingers=config.pose_exchanges,
         )
 
     results = search(range(len(placements)), config.seed)
@@ -186,6 +187,7 @@ def _setup_key(src_v, src_f, tgt_v, tgt_f, skeleton: Skeleton, config, skin_awar
         config.seed,
         skin_aware,
         chain_sigma(config, skin_aware),
+        config.pose_exchanges,
     )
     h.update(repr(settings).encode())
     h.update(code_digest().encode())

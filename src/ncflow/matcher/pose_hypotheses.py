@@ -117,11 +117,14 @@ def world_frames(skeleton: Skeleton, rotations: np.ndarray) -> tuple[Rotation, n
 
 
 def exchanged(
-    skeleton: Skeleton, rotations: Float[np.ndarray, "J 4"], a: np.ndarray, b: np.ndarray
+    skeleton: Skeleton, rotations: Float[np.ndarray, "J 4"], a: np.ndarray, b: np.ndarray, reach: bool = False
 ) -> Float[np.ndarray, "J 4"]:
     """Local rotations (J, 4) with limbs ``a`` and ``b`` (:func:`exchangeable_limbs`) exchanged: every
     joint of one limb turns its bone (towards the mean of its children) to the world direction of the
-    matching bone of the other, by the smallest rotation from rest; the rest of the pose is kept.
+    matching bone of the other, by the smallest rotation from rest; the rest of the pose is kept. With
+    ``reach``, each bone turns instead towards the other limb's matching joint *position* from where the
+    limb's own joint now lies (two fingers crossed over each other, each lying where the other should:
+    taking the other's directions would move each a finger's width too far).
     """
     world, pos = world_frames(skeleton, rotations)
     parents, off = np.asarray(skeleton.parents), np.asarray(skeleton.offsets)
@@ -129,18 +132,21 @@ def exchanged(
     out = np.array(rotations, np.float64)
     for mine, other in ((a, b), (b, a)):
         to_other = dict(zip(mine.tolist(), other.tolist()))
+        now = {int(mine[0]): pos[mine[0]]}
         for j in mine.tolist():
             kids = np.flatnonzero(parents == j)
             if kids.size == 0:
                 continue
             k = to_other[j]
-            aim = pos[[to_other[c] for c in kids.tolist()]].mean(0) - pos[k]
+            aim = pos[[to_other[c] for c in kids.tolist()]].mean(0) - (now[j] if reach else pos[k])
             rest = off[kids].mean(0)
             if np.linalg.norm(aim) < 1e-9 or np.linalg.norm(rest) < 1e-9:
                 continue
             turn = Rotation.align_vectors(aim[None], rest[None])[0]
             new_world[j] = turn
             out[j] = (new_world[parents[j]].inv() * turn).as_quat(scalar_first=True)
+            for c in kids.tolist():
+                now[c] = now[j] + turn.apply(off[c])
     return out
 
 

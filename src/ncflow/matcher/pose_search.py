@@ -33,13 +33,14 @@ descends) for the pose of the source skeleton whose skinned source best matches 
   when nothing explains the target better;
 * against a single view, the score a search returns (placements are compared by it) leaves out what the
   view hides (:func:`seen_scores`): a view of a person's back is told from one of their front by it.
+* with ``exchange_fingers`` (off by default), the refined pose's neighbouring fingers are tried exchanged at
+  the fine σ, the one-to-one assignment of fingers (:mod:`ncflow.matcher.pose_exchange`).
 
 :func:`search_poses` runs a :func:`search_plan` with :func:`beam_search` per search and refines the pooled
 beams (:func:`refine_pooled`).
 
-Off by default (measured in docs/tuning.md: it puts fingers right in the search, and on MANO pairs the
-training then did worse): ``chain_sigma`` adds :func:`search_chains`, each finger or limb re-posed from a
-grid of planar curls with the others held at a finer σ. ``skin_aware`` gives the source's samples bone
+Off by default (docs/tuning.md): ``chain_sigma`` adds :func:`search_chains`, each finger or limb re-posed
+from a grid of planar curls with the others held at a finer σ. ``skin_aware`` gives the source's samples bone
 weights that leave out the bones in front of their skin; the matcher turns it on where the training's
 weights do the same (``flow.skinning_weights`` "surface": a source whose limbs touch).
 
@@ -56,6 +57,7 @@ import jax
 import numpy as np
 from jaxtyping import Float, Int
 
+from ncflow.matcher.pose_exchange import exchange_step
 from ncflow.matcher.pose_hypotheses import (
     chain_grid,
     chain_hypotheses,
@@ -65,6 +67,7 @@ from ncflow.matcher.pose_hypotheses import (
     world_frames,
 )
 from ncflow.matcher.pose_scorer import DTYPE, PoseScorer
+from ncflow.matcher.pose_stacks import completed, host, picked, stacked
 from ncflow.skeleton import Skeleton
 from ncflow.skeleton.kinematics import Pose
 
@@ -110,34 +113,12 @@ def best_distinct(
     """Indices of at most ``count`` poses, lowest finite score first, skipping any whose joints all
     lie within ``distinct`` of a pose already taken (the same pose found twice).
     """
-    picked: list[int] = []
+    chosen: list[int] = []
     for i in np.argsort(scores, kind="stable"):
-        if np.isfinite(scores[i]) and len(picked) < count:
-            if all(np.abs(joints[i] - joints[k]).max() > distinct for k in picked):
-                picked.append(int(i))
-    return picked
-
-
-def _host(pose: Pose) -> Pose:
-    """The pose in NumPy: the bookkeeping between the compiled programs (picking, stacking poses) runs
-    on the host. With jax.numpy each operation and shape is one more program to compile, and on a cold
-    run each waits seconds behind the training step compiling in its thread (:mod:`ncflow.jit.ahead`).
-    """
-    return jax.tree.map(np.asarray, pose)
-
-
-def _picked(pose: Pose, rows) -> Pose:
-    return jax.tree.map(lambda a: np.asarray(a)[rows], pose)
-
-
-def _stacked(*poses: Pose) -> Pose:
-    return jax.tree.map(lambda *a: np.concatenate([np.asarray(x) for x in a]), *poses)
-
-
-def _completed(first: Pose, pooled: Pose) -> Pose:
-    """``first``, then the rows of ``pooled`` past its length: one scorer serves both stacks."""
-    n = first.rotations.shape[0]
-    return _stacked(first, _picked(pooled, slice(n, None)))
+        if np.isfinite(scores[i]) and len(chosen) < count:
+            if all(np.abs(joints[i] - joints[k]).max() > distinct for k in chosen):
+                chosen.append(int(i))
+    return chosen
 
 
 def moving_diracs(skeleton: Skeleton, weights: Float[np.ndarray, "N B"], joint: int, tol: float) -> np.ndarray:
@@ -183,13 +164,13 @@ def _exchange_step(skeleton, beams: Pose, n_real: int, limbs, sigma, score, y, m
         distinct[i] = move >= min_move * length
     if not distinct.any():
         return beams, n_real, 0
-    beams = _host(beams)
-    cand = _stacked(beams, Pose(swapped.astype(beams.rotations.dtype), beams.translation))
+    beams = host(beams)
+    cand = stacked(beams, Pose(swapped.astype(beams.rotations.dtype), beams.translation))
     s = np.array(score(cand, np.concatenate([np.arange(beam) < n_real, distinct]), sigma, y), np.float64)
     n_new = n_real + int(distinct.sum())
     keep = np.argsort(s, kind="stable")[: min(beam, n_new)]
     keep = np.concatenate([keep, np.repeat(keep[:1], beam - keep.size)])
-    return _picked(cand, keep), min(beam, n_new), int(distinct.sum())
+    return picked(cand, keep), min(beam, n_new), int(distinct.sum())
 
 
 def search_pose(
@@ -249,6 +230,7 @@ def search_poses(
     skin_aware: bool = False,
     chain_sweeps: int = 2,
     chain_near: float = 0.1,
+    exchange_fingers: bool = False,
 ) -> list[PoseSearchResult]:
     """:func:`search_pose` for several placements of one target (the same faces, vertices moved
     rigidly), compiled once; the scores are comparable (the same Diracs, moved, and ⟨Y, Y⟩ is
@@ -288,6 +270,8 @@ def search_poses(
             ``flow.skinning_weights`` "surface" (:func:`ncflow.matcher.place.place` passes it then).
         chain_sweeps: passes of the chain search over the chains.
         chain_near: the chain search runs on the placements whose score is within this share of the best.
+        exchange_fingers: try the refined pose's fingers exchanged at the last ``sigmas_refine``
+            (:func:`~ncflow.matcher.pose_exchange.exchange_step`).
     """
     scorer = PoseScorer(
         skeleton,
@@ -308,10 +292,12 @@ def search_poses(
         found = [
             beam_search(scorer, plan, float(sigma), bool(exchange), y_coarse, beam) for sigma, exchange in searches
         ]
-        pooled = _host(scorer.canonical(_stacked(*[b for b, _, _ in found], scorer.rest_stack)))
+        pooled = host(scorer.canonical(stacked(*[b for b, _, _ in found], scorer.rest_stack)))
         valid = np.concatenate([np.arange(beam) < n for _, n, _ in found] + [[True]])
         refining = (sigmas_refine, n_refined, refined_fine, distinct)
         results.append(refine_pooled(scorer, pooled, valid, y_fine, *refining, 1 + sum(f[2] for f in found)))
+        if discrete and exchange_fingers:
+            results[-1] = _exchange(scorer, results[-1], pooled, valid, y_fine, float(sigmas_refine[-1]))
         targets.append((y_fine, pooled, valid))
     chains = limb_chains(skeleton) if discrete and chain_sigma else []
     if chains:
@@ -322,6 +308,16 @@ def search_poses(
                 chain = (chain_sigma, chain_sweeps, moving_tol)
                 results[i] = search_chains(scorer, chains, results[i], y_fine, *chain, *stack)
     return results
+
+
+def _exchange(scorer: PoseScorer, found: PoseSearchResult, pooled: Pose, valid, y_fine, sigma) -> PoseSearchResult:
+    """``found`` or, where an exchange of its fingers explains the target better at ``sigma``, that pose."""
+    pose, won = exchange_step(scorer, host(found.pose), valid.size, y_fine, sigma)
+    if not won:
+        return found
+    stack = host(scorer.canonical(picked(pose, None)))
+    score, rest_score = seen_scores(scorer, stack, pooled, valid.size, y_fine, sigma)
+    return PoseSearchResult(jax.device_put(picked(stack, 0)), score, rest_score, found.hypotheses)
 
 
 def search_chains(
@@ -353,7 +349,7 @@ def search_chains(
     moving = [moving_diracs(skeleton, weights, int(c[0]), moving_tol) for c in chains]
     size = _padded_size(m.size for m in moving)
     moved = [_padded_diracs(m, size) for m in moving]
-    start = _host(found.pose)
+    start = host(found.pose)
     rot, translation = np.array(start.rotations, np.float32), start.translation
     for _ in range(sweeps):
         for c, grid, (idx, mask) in zip(chains, grids, moved):
@@ -365,17 +361,17 @@ def search_chains(
             active = np.arange(n_hyp) < n_real
             s = scorer.expand_chain(Pose(rot, translation), joints, hyp, active, sigma, y_fine, idx, mask)
             rot[c] = hyp[int(np.argmin(np.asarray(s))), : c.size]
-    rows = _picked(pooled, np.full(n_rows, valid.size - 1))
-    rows = _stacked(Pose(rot[None], np.asarray(translation)[None]), _picked(rows, slice(1, None)))
+    rows = picked(pooled, np.full(n_rows, valid.size - 1))
+    rows = stacked(Pose(rot[None], np.asarray(translation)[None]), picked(rows, slice(1, None)))
     active = np.arange(n_rows) == 0
-    rows = _host(scorer.refine_all(rows, active, sigma, y_fine))
-    both = _completed(_stacked(_picked(rows, slice(0, 1)), _host(found.pose_stack())), pooled)
+    rows = host(scorer.refine_all(rows, active, sigma, y_fine))
+    both = completed(stacked(picked(rows, slice(0, 1)), host(found.pose_stack())), pooled)
     scored = np.arange(valid.size) < 2
     at_sigma = np.array(scorer.score_fine(both, scored, sigma, y_fine), np.float64)
     if not at_sigma[0] < at_sigma[1]:
         return found
     final = float(np.asarray(scorer.score_compared(both, scored, sigma_score, y_fine))[0])
-    pose = jax.device_put(_picked(scorer.canonical(_picked(both, slice(0, 1))), 0))
+    pose = jax.device_put(picked(scorer.canonical(picked(both, slice(0, 1))), 0))
     return PoseSearchResult(pose, final, found.rest_score, found.hypotheses + sweeps * sum(g.shape[0] for g in grids))
 
 
@@ -425,7 +421,7 @@ def beam_search(scorer: PoseScorer, plan: list, sigma: float, exchange: bool, y_
     """The best ``beam`` poses down the tree at ``sigma`` (rows past the distinct count repeat the best),
     limb exchanges tried when ``exchange``: (beam poses, their distinct count, poses scored).
     """
-    beams = _picked(scorer.rest_stack, np.zeros(beam, int))
+    beams = picked(scorer.rest_stack, np.zeros(beam, int))
     n_real, n_scored = 1, 0
     for step in plan:
         if len(step) == 2:  # a limb exchange: each beam pose with and without it
@@ -443,7 +439,7 @@ def beam_search(scorer: PoseScorer, plan: list, sigma: float, exchange: bool, y_
         keep = np.argsort(s, kind="stable")[: min(beam, n_real * n_h)]
         keep = np.concatenate([keep, np.repeat(keep[:1], beam - keep.size)])  # pad with the best
         n_real = min(beam, n_real * n_h)
-        beams = _picked(cand, keep)
+        beams = picked(cand, keep)
     return beams, n_real, n_scored
 
 
@@ -464,36 +460,36 @@ def refine_pooled(
     better (``n_scored``: the poses the beam searches scored).
     """
     first = np.array(scorer.score_fine(pooled, valid, float(sigmas_refine[0]), y_fine), np.float64)
-    picked = best_distinct(first[:-1], np.asarray(scorer.pose_joints(pooled))[:-1], n_refined, distinct)
-    rows = np.array(picked + [pooled.rotations.shape[0] - 1] * (n_refined + 1 - len(picked)))
-    real = np.arange(rows.size) < len(picked)
+    chosen = best_distinct(first[:-1], np.asarray(scorer.pose_joints(pooled))[:-1], n_refined, distinct)
+    rows = np.array(chosen + [pooled.rotations.shape[0] - 1] * (n_refined + 1 - len(chosen)))
+    real = np.arange(rows.size) < len(chosen)
     real[-1] = True  # the rest pose, refined too; the copies before it fill the fixed shape
     only = np.zeros(valid.size, bool)
     scored = np.concatenate([real, only[rows.size :]])
-    candidates = _picked(pooled, rows)
+    candidates = picked(pooled, rows)
     active = real
     for level, sigma in enumerate(sigmas_refine):
         if level:  # finer scales: the best few that are still distinct
-            shaped = _completed(candidates, pooled)
+            shaped = completed(candidates, pooled)
             s = np.array(scorer.score_fine(shaped, scored, float(sigma), y_fine), np.float64)[: rows.size]
             joints = np.asarray(scorer.pose_joints(shaped))[: rows.size]
             active = np.isin(np.arange(rows.size), best_distinct(s, joints, refined_fine, distinct))
         candidates = scorer.refine_all(candidates, active, float(sigma), y_fine)
-    padded = _completed(candidates, pooled)
+    padded = completed(candidates, pooled)
     final = np.array(scorer.score_fine(padded, scored, float(sigmas_refine[-1]), y_fine), np.float64)
-    rests = _picked(scorer.rest_stack, np.zeros(valid.size, int))
+    rests = picked(scorer.rest_stack, np.zeros(valid.size, int))
     only[0] = True
     rest_score = float(np.asarray(scorer.score_fine(rests, only, float(sigmas_refine[-1]), y_fine))[0])
     best = int(np.argmin(final))
-    seen = seen_scores(scorer, _picked(padded, slice(best, best + 1)), pooled, valid.size, y_fine, sigmas_refine[-1])
+    seen = seen_scores(scorer, picked(padded, slice(best, best + 1)), pooled, valid.size, y_fine, sigmas_refine[-1])
     if final[best] >= rest_score:
         return PoseSearchResult(scorer.rest, seen[1], seen[1], n_scored)
-    pose = jax.device_put(_picked(scorer.canonical(_picked(padded, slice(best, best + 1))), 0))
+    pose = jax.device_put(picked(scorer.canonical(picked(padded, slice(best, best + 1))), 0))
     return PoseSearchResult(pose, seen[0], seen[1], n_scored)
 
 
 def seen_scores(scorer: PoseScorer, pose: Pose, pooled: Pose, n_rows: int, y_fine, sigma) -> tuple[float, float]:
     """``PoseScorer.score_compared`` at ``sigma`` of ``pose`` (a stack of one) and the rest pose, ``pooled``'s shape."""
-    rows = _completed(_stacked(pose, scorer.rest_stack), pooled)
+    rows = completed(stacked(pose, scorer.rest_stack), pooled)
     s = scorer.score_compared(rows, np.arange(n_rows) < 2, sigma, y_fine)
     return float(s[0]), float(s[1])
