@@ -18,7 +18,7 @@ import jax
 import numpy as np
 from jaxtyping import Float
 
-from ncflow.matcher.pose_hypotheses import exchangeable_limbs, exchanged, world_frames
+from ncflow.matcher.pose_hypotheses import exchange_moves, exchangeable_limbs, exchanged, world_frames
 from ncflow.skeleton import Skeleton
 from ncflow.skeleton.kinematics import Pose
 
@@ -54,7 +54,6 @@ def exchange_variants(
     for a, b in limbs:
         if len(group[int(parents[a[0]])]) < min_group:
             continue
-        length = skeleton.bone_lengths[np.concatenate([a[1:], b[1:]]) - 1].sum() / 2.0
         for k in range(a.size):
             if not np.any(parents == a[k]):
                 break
@@ -62,7 +61,7 @@ def exchange_variants(
                 break  # a branching limb is exchanged whole only
             for reach in (False, True):
                 swapped = exchanged(skeleton, rot, a[k:], b[k:], reach)
-                if np.linalg.norm(world_frames(skeleton, swapped)[1] - base, axis=1).max() >= min_move * length:
+                if exchange_moves(skeleton, base, swapped, a, b, min_move):
                     out.append(swapped)
                     labels.append((int(a[0]), int(b[0]), k, reach))
     return np.asarray(out).reshape(-1, *rot.shape), labels
@@ -104,6 +103,6 @@ def exchange_step(scorer, pose: Pose, n_rows: int, y_fine, sigma: float, moved: 
     other = np.linalg.norm(joints - before, axis=-1).max(-1) >= moved
     final[~other] = np.inf
     win = int(np.argmin(final))
-    if not other[win] or not final[win] < reference:
+    if not final[win] < reference:
         return pose, False
     return jax.tree.map(lambda x: np.asarray(x)[win], refined), True

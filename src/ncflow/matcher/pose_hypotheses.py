@@ -116,6 +116,22 @@ def world_frames(skeleton: Skeleton, rotations: np.ndarray) -> tuple[Rotation, n
     return Rotation.concatenate(world), pos
 
 
+def exchange_moves(
+    skeleton: Skeleton,
+    base: Float[np.ndarray, "J 3"],
+    swapped: Float[np.ndarray, "J 4"],
+    a: np.ndarray,
+    b: np.ndarray,
+    min_move: float,
+) -> bool:
+    """Whether the exchange ``swapped`` (local rotations, :func:`exchanged`) of limbs ``a`` and ``b`` moves a
+    joint at least ``min_move`` × the limbs' mean length from ``base`` (the joints before it,
+    :func:`world_frames`): two straight fingers side by side exchanged are the same pose.
+    """
+    length = skeleton.bone_lengths[np.concatenate([a[1:], b[1:]]) - 1].sum() / 2.0
+    return bool(np.linalg.norm(world_frames(skeleton, swapped)[1] - base, axis=1).max() >= min_move * length)
+
+
 def exchanged(
     skeleton: Skeleton, rotations: Float[np.ndarray, "J 4"], a: np.ndarray, b: np.ndarray, reach: bool = False
 ) -> Float[np.ndarray, "J 4"]:

@@ -61,6 +61,7 @@ from ncflow.matcher.pose_exchange import exchange_step
 from ncflow.matcher.pose_hypotheses import (
     chain_grid,
     chain_hypotheses,
+    exchange_moves,
     exchangeable_limbs,
     exchanged,
     limb_chains,
@@ -156,12 +157,10 @@ def _exchange_step(skeleton, beams: Pose, n_real: int, limbs, sigma, score, y, m
     beam = beams.rotations.shape[0]
     a, b = limbs
     rot = np.asarray(beams.rotations, np.float64)
-    length = skeleton.bone_lengths[np.concatenate([a[1:], b[1:]]) - 1].sum() / 2.0
     swapped, distinct = rot.copy(), np.zeros(beam, bool)
     for i in range(n_real):
         swapped[i] = exchanged(skeleton, rot[i], a, b)
-        move = np.linalg.norm(world_frames(skeleton, swapped[i])[1] - world_frames(skeleton, rot[i])[1], axis=1).max()
-        distinct[i] = move >= min_move * length
+        distinct[i] = exchange_moves(skeleton, world_frames(skeleton, rot[i])[1], swapped[i], a, b, min_move)
     if not distinct.any():
         return beams, n_real, 0
     beams = host(beams)
